@@ -1,0 +1,234 @@
+"""Find, download (only when asked) and unpack a dataset archive; report missing files.
+
+Order of preference in :func:`ensure_dataset`:
+1. the unpacked layout already under ``data_dir`` (``h3.6m/dataset`` or ``cmu_mocap``);
+2. ``archive``: a path to the zip (or to the folder holding it), or an http(s) URL, which is then
+   downloaded into ``data_dir`` (the only case where anything is downloaded: the user asked);
+3. ``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``.
+
+Unpacking writes into a temporary folder inside ``data_dir`` and renames it into place at the end,
+so an interrupted unpack never looks like data. Member paths are checked: absolute paths, ``..``
+and symbolic links are refused.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import stat
+import urllib.request
+import zipfile
+from pathlib import Path, PurePosixPath
+
+from src.data.errors import DataError, DataNotFoundError
+from src.data.layout import SPECS, DatasetSpec, is_unpacked
+
+log = logging.getLogger(__name__)
+
+ARCHIVES_ENV = "MOTION_ARCHIVES"
+DATA_DIR_ENV = "MOTION_DATA_DIR"
+
+
+def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path:
+    """``data_dir`` if given, else ``$MOTION_DATA_DIR``, else ``./data``."""
+    if data_dir is None or str(data_dir) == "":
+        data_dir = os.environ.get(DATA_DIR_ENV) or "data"
+    return Path(data_dir).expanduser()
+
+
+def _spec(dataset: str | DatasetSpec) -> DatasetSpec:
+    if isinstance(dataset, DatasetSpec):
+        return dataset
+    if dataset not in SPECS:
+        raise DataError(f"unknown dataset {dataset!r}; valid: {', '.join(SPECS)}")
+    return SPECS[dataset]
+
+
+def ensure_dataset(
+    dataset: str | DatasetSpec,
+    data_dir: str | os.PathLike | None,
+    archive: str | os.PathLike | None = None,
+    archive_dir: str | os.PathLike | None = None,
+) -> Path:
+    """Make sure the dataset is unpacked under ``data_dir``; return ``data_dir``.
+
+    Raises :class:`DataNotFoundError` saying what to download and where to put it when neither
+    the unpacked folder nor an archive can be found.
+    """
+    spec = _spec(dataset)
+    data_dir = resolve_data_dir(data_dir)
+    if is_unpacked(data_dir, spec):
+        return data_dir
+
+    zip_path = _find_archive(spec, data_dir, archive, archive_dir)
+    log.info("unpacking %s into %s", zip_path, data_dir)
+    unpack_archive(zip_path, data_dir, spec)
+    return data_dir
+
+
+def _find_archive(
+    spec: DatasetSpec, data_dir: Path, archive: str | os.PathLike | None, archive_dir
+) -> Path:
+    if archive is not None and str(archive) != "":
+        text = str(archive)
+        if text.startswith(("http://", "https://")):
+            return download(text, data_dir / spec.archive_name)
+        path = Path(text).expanduser()
+        if path.is_dir():
+            path = path / spec.archive_name
+        if not path.is_file():
+            raise DataNotFoundError(
+                f"data.archive={text} does not exist (fix: point data.archive to "
+                f"{spec.archive_name} or to the folder that holds it; {_how_to_get(spec)})"
+            )
+        return path
+
+    searched = []
+    for folder in (archive_dir, os.environ.get(ARCHIVES_ENV), data_dir):
+        if folder is None or str(folder) == "":
+            continue
+        candidate = Path(folder).expanduser() / spec.archive_name
+        searched.append(str(candidate))
+        if candidate.is_file():
+            return candidate
+
+    raise DataNotFoundError(
+        f"{spec.name} data not found: there is no folder {data_dir / spec.marker} and no archive "
+        f"(looked for {', '.join(searched)}).\n"
+        f"Fix: {_how_to_get(spec)}, then either\n"
+        f"  - set {ARCHIVES_ENV}=<the folder holding {spec.archive_name}>, or\n"
+        f"  - pass data.archive=<path to {spec.archive_name}, or its http(s) URL to download it>.\n"
+        f"It is unpacked into data.data_dir (now {data_dir}; env {DATA_DIR_ENV} sets the "
+        f"default). An already unpacked copy is used if {data_dir / spec.marker} exists."
+    )
+
+
+def _how_to_get(spec: DatasetSpec) -> str:
+    return f"download {spec.source} ({spec.url})"
+
+
+def download(url: str, dest: Path) -> Path:
+    """Download ``url`` to ``dest`` (via a ``.part`` file); reuse ``dest`` if already there."""
+    if dest.is_file() and zipfile.is_zipfile(dest):
+        return dest
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    part = dest.with_name(dest.name + f".part-{os.getpid()}")
+    log.warning("downloading %s to %s (data.archive is a URL)", url, dest)
+    try:
+        with urllib.request.urlopen(url, timeout=60) as response, open(part, "wb") as out:
+            shutil.copyfileobj(response, out, 1 << 20)
+    except OSError as exc:  # URLError and HTTPError are OSErrors
+        part.unlink(missing_ok=True)
+        raise DataNotFoundError(
+            f"could not download {url}: {exc} (fix: download it by hand and pass "
+            f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
+        ) from None
+    if not zipfile.is_zipfile(part):
+        part.unlink(missing_ok=True)
+        raise DataError(
+            f"{url} did not return a zip archive (an error page?) (fix: download it by hand and "
+            f"pass data.archive=<local path>)"
+        )
+    os.replace(part, dest)
+    return dest
+
+
+def _member_path(name: str, root: str, archive: Path) -> str | None:
+    """Member path relative to data_dir (from ``root`` on), None to skip; refuse unsafe names."""
+    name = name.replace("\\", "/")
+    parts = PurePosixPath(name).parts
+    if name.startswith("/") or (parts and ":" in parts[0]) or ".." in parts:
+        raise DataError(
+            f"{archive}: unsafe member path {name!r} (absolute or with '..'); refusing to unpack "
+            "(fix: use the archive as distributed)"
+        )
+    if root not in parts:
+        return None  # e.g. __MACOSX/ or a README next to the dataset folder
+    return "/".join(parts[parts.index(root) :])
+
+
+def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, dataset) -> None:
+    """Safely unpack the dataset folder of ``archive`` into ``data_dir`` (temp dir + rename)."""
+    spec = _spec(dataset)
+    archive, data_dir = Path(archive), Path(data_dir)
+    if not zipfile.is_zipfile(archive):
+        raise DataError(
+            f"{archive}: not a zip archive (fix: use {spec.archive_name} as distributed; "
+            f"{_how_to_get(spec)})"
+        )
+    data_dir.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temps(data_dir, spec)
+    tmp = data_dir / f".{spec.root}.unpacking-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    try:
+        with zipfile.ZipFile(archive) as zf:
+            for info in zf.infolist():
+                rel = _member_path(info.filename, spec.root, archive)
+                if rel is None or info.is_dir():
+                    continue
+                if stat.S_ISLNK(info.external_attr >> 16):
+                    raise DataError(
+                        f"{archive}: member {info.filename!r} is a symbolic link; refusing to "
+                        "unpack (fix: use the archive as distributed)"
+                    )
+                dest = tmp / rel
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                with zf.open(info) as src, open(dest, "wb") as out:
+                    shutil.copyfileobj(src, out, 1 << 20)
+        if not (tmp / spec.marker).is_dir():
+            raise DataError(
+                f"{archive}: holds no {spec.marker}/ folder, so it is not the {spec.name} archive "
+                f"(fix: {_how_to_get(spec)})"
+            )
+        target = data_dir / spec.root
+        try:
+            os.rename(tmp / spec.root, target)
+        except OSError:
+            if not is_unpacked(data_dir, spec):
+                raise DataError(
+                    f"cannot move the unpacked data to {target}: the folder exists but holds no "
+                    f"{spec.marker}/ (fix: delete {target} and run again)"
+                ) from None
+            # else another process finished unpacking first; its copy is as good as ours
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _remove_stale_temps(data_dir: Path, spec: DatasetSpec) -> None:
+    """Delete temp folders left by killed unpacks (only those whose process is gone)."""
+    for old in data_dir.glob(f".{spec.root}.unpacking-*"):
+        try:
+            os.kill(int(old.name.rsplit("-", 1)[1]), 0)
+        except (ValueError, ProcessLookupError):
+            shutil.rmtree(old, ignore_errors=True)
+        except PermissionError:
+            pass  # a live process of another user
+
+
+def check_missing(
+    spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool
+) -> None:
+    """Full protocol: raise listing every missing file. Partial mode: warn with the list."""
+    if not missing:
+        return
+    listing = "\n  ".join(missing)
+    if not allow_partial:
+        raise DataNotFoundError(
+            f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
+            f"  {listing}\n"
+            f"The full protocol needs all of them. Fix: get the complete archive "
+            f"({_how_to_get(spec)}), delete {data_dir / spec.root} and run again to unpack it; "
+            f"or set data.allow_partial=true to train on the files that exist and report the "
+            f"actions that cannot be evaluated as absent.",
+            missing,
+        )
+    log.warning(
+        "data.allow_partial=true: %d expected %s file(s) are missing under %s; training on what "
+        "exists, actions without their test files are reported as absent:\n  %s",
+        len(missing),
+        spec.name,
+        data_dir,
+        listing,
+    )

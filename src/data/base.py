@@ -1,0 +1,361 @@
+"""The LightningDataModule shared by H3.6M and CMU.
+
+Pipeline (each step cites the protocol):
+text files -> (cache) raw 50 Hz float32 arrays -> Normalizer from the raw training frames (§2.1)
+-> even-frame downsampling (§1.3) -> normalised used dimensions -> training windows drawn per
+§1.4 / §1.5 and a fixed list of evaluation windows (§3; or the project's ``random`` /
+``strided`` protocols).
+
+With a partial copy of the data, ``allow_partial=False`` (the full protocol) raises listing every
+missing file; ``allow_partial=True`` trains on what exists and lists each action that cannot be
+evaluated in ``absent_actions`` with the reason, so it is reported as absent, never as zero.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from src.data.archive import check_missing, ensure_dataset, resolve_data_dir
+from src.data.cache import load_sequences
+from src.data.datasets import EvalWindowDataset, TrainWindowSampler, WindowDataset
+from src.data.errors import DataError
+from src.data.layout import DatasetSpec, FileEntry, missing_files, parse_actions
+from src.data.normalization import Normalizer
+from src.data.windows import TRAIN_START_LOW, random_starts, strided_starts
+
+log = logging.getLogger(__name__)
+
+EVAL_PROTOCOLS = ("srnn", "random", "strided")
+
+
+@dataclass(frozen=True)
+class EvalWindow:
+    """One evaluation window: frames [start, start + observed_len + future_len) of ``sequence``.
+
+    ``sequence`` is the file key (``S5/walking_1``, ``test/walking/walking_1``); ``subaction`` is
+    the H3.6M subaction (1 or 2) or the CMU file number k.
+    """
+
+    action: str
+    sequence: str
+    subaction: int
+    start: int
+
+
+def _positive(name: str, value, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise DataError(f"data.{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+class MotionDataModule(L.LightningDataModule):
+    """Common loading, normalisation and windowing; subclasses say which files and test windows."""
+
+    spec: DatasetSpec
+    dataset_name: str
+    conv_padding: str  # "same" on H3.6M, "valid" on CMU (protocol §6.7)
+    # Milliseconds per downsampled frame, used for the horizon labels. 40 ms (25 fps) on H3.6M;
+    # CMU keeps 40 as the reference's table labels do, although its files are most likely
+    # 30 Hz after downsampling (protocol §1.5, [L] issue #4).
+    frame_ms: int = 40
+
+    def __init__(
+        self,
+        spec: DatasetSpec,
+        data_dir: str | os.PathLike | None,
+        archive: str | os.PathLike | None = None,
+        archive_dir: str | os.PathLike | None = None,
+        actions: str | Iterable[str] = "all",
+        observed_len: int = 50,
+        future_len: int = 25,
+        batch_size: int = 16,
+        eval_batch_size: int = 256,
+        steps_per_epoch: int = 1000,
+        eval_protocol: str = "srnn",
+        eval_windows_per_action: int = 256,
+        eval_stride: int = 10,
+        eval_seed: int = 1234567890,
+        allow_partial: bool = False,
+        num_workers: int = 0,
+        seed: int = 0,
+    ):
+        super().__init__()
+        self.spec = spec
+        self.data_dir = resolve_data_dir(data_dir)
+        self.archive = archive
+        self.archive_dir = archive_dir
+        self.actions = parse_actions(actions, spec)
+        self.observed_len = _positive("observed_len", observed_len)
+        self.future_len = _positive("future_len", future_len)
+        self.batch_size = _positive("batch_size", batch_size)
+        self.eval_batch_size = _positive("eval_batch_size", eval_batch_size)
+        self.steps_per_epoch = _positive("steps_per_epoch", steps_per_epoch)
+        if eval_protocol not in EVAL_PROTOCOLS:
+            raise DataError(
+                f"unknown data.eval_protocol {eval_protocol!r}; valid: {', '.join(EVAL_PROTOCOLS)}"
+            )
+        self.eval_protocol = eval_protocol
+        self.eval_windows_per_action = _positive("eval_windows_per_action", eval_windows_per_action)
+        self.eval_stride = _positive("eval_stride", eval_stride)
+        self.eval_seed = _positive("eval_seed", eval_seed, 0)
+        self.allow_partial = bool(allow_partial)
+        self.num_workers = _positive("num_workers", num_workers, 0)
+        self.seed = _positive("seed", seed, 0)
+        self.draws_per_step = 1
+
+        # Filled by setup().
+        self.normalizer: Normalizer | None = None
+        self.eval_windows: list[EvalWindow] = []
+        self.absent_actions: dict[str, str] = {}
+        self.missing_files: list[str] = []
+        self.untrained_actions: list[str] = []  # configured actions without any training file
+        self._train_dataset: WindowDataset | None = None
+        self._eval_dataset: EvalWindowDataset | None = None
+        self._test_raw: dict[str, np.ndarray] = {}
+        self._test_entries: dict[str, list[FileEntry]] = {}
+        self._warned_missing = False
+        self._given_normalizer: Normalizer | None = None
+        self._stage: str | None = None
+
+    def set_normalizer(self, normalizer: Normalizer) -> None:
+        """Use these statistics (a checkpoint's) instead of the training files' ones. Evaluation
+        (`setup("validate"|"test")`) then reads only the test files."""
+        self._given_normalizer = normalizer
+
+    @property
+    def _eval_only(self) -> bool:
+        return self._given_normalizer is not None and self._stage != "fit"
+
+    def _plain_hparams(self) -> None:
+        """Store paths and OmegaConf lists as plain str/list in ``hparams``: checkpoints then
+        load with torch.load(weights_only=True), which refuses pathlib and omegaconf objects."""
+
+        def plain(v):
+            if v is None or isinstance(v, (str, int, float, bool)):
+                return v
+            if isinstance(v, os.PathLike):
+                return os.fspath(v)
+            if isinstance(v, (tuple, list)):
+                return type(v)(plain(x) for x in v)
+            if isinstance(v, Iterable):
+                return [plain(x) for x in v]
+            return str(v)
+
+        for key, value in list(self.hparams.items()):
+            self.hparams[key] = plain(value)
+
+    # ---- dataset-specific parts -------------------------------------------------------------
+
+    def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
+        """(training files, test files) of the configured actions (and subjects)."""
+        raise NotImplementedError
+
+    def protocol_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
+        """The reference test windows of one action: (index into its test files, start)."""
+        raise NotImplementedError
+
+    # ---- public attributes ------------------------------------------------------------------
+
+    @property
+    def num_actions(self) -> int:
+        return len(self.actions)
+
+    @property
+    def num_features(self) -> int:
+        return self.spec.n_columns
+
+    @property
+    def pose_dim(self) -> int:
+        return self._require_setup().pose_dim
+
+    @property
+    def window_len(self) -> int:
+        return self.observed_len + self.future_len
+
+    def _require_setup(self) -> Normalizer:
+        if self.normalizer is None:
+            raise DataError(
+                f"{type(self).__name__}: call prepare_data() and setup() before using the data"
+            )
+        return self.normalizer
+
+    # ---- Lightning hooks --------------------------------------------------------------------
+
+    def prepare_data(self) -> None:
+        """Unpack the archive if needed and parse every present file into the cache."""
+        train, test = self._locate()
+        if self._eval_only:
+            train = []
+        present = [e.relpath for e in train + test if e.relpath not in self.missing_files]
+        load_sequences(self.data_dir, self.spec, present)
+
+    def _locate(self) -> tuple[list[FileEntry], list[FileEntry]]:
+        ensure_dataset(self.spec, self.data_dir, self.archive, self.archive_dir)
+        train, test = self.expected_files()
+        if self._eval_only:
+            train = []
+        self.missing_files = missing_files(self.data_dir, train + test)
+        if not self._warned_missing or not self.allow_partial:
+            check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
+            self._warned_missing = True
+        return train, test
+
+    def setup(self, stage: str | None = None) -> None:
+        """Load, normalise and window the data (once; later calls are no-ops)."""
+        if self.normalizer is not None:
+            return
+        self._stage = stage
+        train, test = self._locate()
+        missing = set(self.missing_files)
+        train = [e for e in train if e.relpath not in missing]
+        present_test = [e for e in test if e.relpath not in missing]
+        raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
+        if not train and not self._eval_only:
+            raise DataError(
+                f"no training file of the configured actions exists under {self.data_dir} "
+                f"(missing: {', '.join(self.missing_files)})"
+            )
+
+        # Statistics from the raw 50 Hz training frames, before downsampling (protocol §2.1).
+        normalizer = self._given_normalizer or Normalizer.from_sequences(
+            [raw[e.relpath] for e in train]
+        )
+        label = {a: i for i, a in enumerate(self.actions)}
+
+        def prepare(entry: FileEntry) -> torch.Tensor:
+            frames = torch.from_numpy(raw[entry.relpath][::2].copy())  # even raw frames, §1.3
+            return normalizer.normalize(frames)
+
+        train_seqs = [prepare(e) for e in train]
+        self._train_dataset = (
+            None
+            if self._eval_only
+            else WindowDataset(
+                train_seqs, [label[e.action] for e in train], self.observed_len, self.future_len
+            )
+        )
+        self._train_lengths = [len(s) for s in train_seqs]
+        trained = {e.action for e in train}
+        self.untrained_actions = [a for a in self.actions if a not in trained]
+        if self.untrained_actions and not self._eval_only:
+            log.warning(
+                "no training file for action(s) %s: they are evaluated but never trained on",
+                ", ".join(self.untrained_actions),
+            )
+
+        # Evaluation windows, action by action in canonical order.
+        self.absent_actions = {}
+        self.eval_windows = []
+        self._test_entries = {a: [e for e in test if e.action == a] for a in self.actions}
+        self._test_raw = {e.key: raw[e.relpath][::2].copy() for e in present_test}
+        eval_seqs: list[torch.Tensor] = []
+        eval_labels: list[int] = []
+        pairs: list[tuple[int, int]] = []
+        for action in self.actions:
+            entries = self._test_entries[action]
+            absent = [e.relpath for e in entries if e.relpath in missing]
+            if absent:
+                self.absent_actions[action] = "missing test file(s): " + ", ".join(absent)
+                continue
+            lengths = [len(self._test_raw[e.key]) for e in entries]
+            try:
+                windows = self._action_windows(lengths)
+            except DataError as exc:
+                self.absent_actions[action] = f"test sequences too short ({exc})"
+                continue
+            first = len(eval_seqs)
+            eval_seqs.extend(prepare(e) for e in entries)
+            eval_labels.extend(label[action] for _ in entries)
+            for idx, start in windows:
+                e = entries[idx]
+                self.eval_windows.append(EvalWindow(action, e.key, e.index, start))
+                pairs.append((first + idx, start))
+        if self.absent_actions:
+            log.warning(
+                "%d action(s) cannot be evaluated and are reported as absent: %s",
+                len(self.absent_actions),
+                "; ".join(f"{a} ({why})" for a, why in self.absent_actions.items()),
+            )
+        if not self.eval_windows:
+            raise DataError(
+                f"no configured action can be evaluated: {self.absent_actions} (fix: provide the "
+                "test files listed above)"
+            )
+        eval_base = WindowDataset(eval_seqs, eval_labels, self.observed_len, self.future_len)
+        self._eval_dataset = EvalWindowDataset(eval_base, pairs)
+        self.normalizer = normalizer
+
+    def _action_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
+        low = TRAIN_START_LOW[self.dataset_name]
+        if self.eval_protocol == "srnn":
+            return self.protocol_windows(lengths)
+        if self.eval_protocol == "random":
+            return random_starts(
+                lengths, self.eval_windows_per_action, self.window_len, low, self.eval_seed
+            )
+        windows = strided_starts(lengths, self.window_len, self.eval_stride, low)
+        if not windows:
+            raise DataError(f"no {self.window_len}-frame window fits in lengths {lengths}")
+        return windows
+
+    # ---- loaders ----------------------------------------------------------------------------
+
+    def _loader_kwargs(self) -> dict:
+        return {"num_workers": self.num_workers, "persistent_workers": self.num_workers > 0}
+
+    def train_dataloader(self) -> DataLoader:
+        self._require_setup()
+        sampler = TrainWindowSampler(
+            self._train_lengths,
+            self.window_len,
+            TRAIN_START_LOW[self.dataset_name],
+            self.batch_size,
+            self.steps_per_epoch,
+            _positive("draws_per_step", self.draws_per_step),
+            self.seed,
+        )
+        return DataLoader(self._train_dataset, batch_sampler=sampler, **self._loader_kwargs())
+
+    def _eval_loader(self) -> DataLoader:
+        self._require_setup()
+        return DataLoader(
+            self._eval_dataset,
+            batch_size=self.eval_batch_size,
+            shuffle=False,
+            **self._loader_kwargs(),
+        )
+
+    def val_dataloader(self) -> DataLoader:
+        """The test windows: the protocol has no validation split (protocol §8)."""
+        return self._eval_loader()
+
+    def test_dataloader(self) -> DataLoader:
+        return self._eval_loader()
+
+    # ---- visualisation ----------------------------------------------------------------------
+
+    def test_sequence(self, action: str, index: int = 0) -> np.ndarray:
+        """Downsampled raw (unnormalised, F columns) test sequence ``index`` of ``action``.
+
+        ``index`` 0 is subaction 1 on H3.6M and file ``{action}_1`` on CMU.
+        """
+        self._require_setup()
+        if action not in self._test_entries:
+            raise DataError(f"action {action!r} is not configured; configured: {self.actions}")
+        entries = self._test_entries[action]
+        if not 0 <= index < len(entries):
+            raise DataError(
+                f"{action} has {len(entries)} test sequence(s); index {index} is out of range"
+            )
+        entry = entries[index]
+        if entry.key not in self._test_raw:
+            raise DataError(f"{self.data_dir / entry.relpath}: test file is missing")
+        return self._test_raw[entry.key].copy()

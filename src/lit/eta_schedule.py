@@ -1,0 +1,63 @@
+"""Schedules for the sampling parameter eta of Li et al. eq. (10).
+
+eta is the weight of the model's own prediction in the frames fed back to the decoder during
+training: eta = 1 feeds predictions only (Martinez's "sampling-based loss"), eta = 0 feeds ground
+truth only (teacher forcing). Evaluation always decodes with eta = 1 whatever the schedule.
+
+A schedule is a pure function of the optimiser step, so resuming from a checkpoint at step s
+continues the schedule exactly where it stopped.
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def _check_unit(name: str, value: float) -> float:
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"sampling.{name}={value} is outside [0, 1]; eta is a mixing weight.")
+    return float(value)
+
+
+class Constant:
+    """eta fixed for the whole run. The reference code of Li et al. uses 0.95 (protocol §6.4)."""
+
+    def __init__(self, eta: float = 0.95):
+        self.value = _check_unit("eta", eta)
+
+    def __call__(self, step: int) -> float:
+        return self.value
+
+
+class LinearRamp:
+    """eta moves linearly from `start` to `end` over `steps` optimiser steps, then stays."""
+
+    def __init__(self, start: float = 0.0, end: float = 1.0, steps: int = 20000):
+        self.start = _check_unit("start", start)
+        self.end = _check_unit("end", end)
+        if steps <= 0:
+            raise ValueError(f"sampling.steps={steps} must be a positive number of steps.")
+        self.steps = int(steps)
+
+    def __call__(self, step: int) -> float:
+        frac = min(max(step, 0) / self.steps, 1.0)
+        return self.start + frac * (self.end - self.start)
+
+
+class InverseSigmoid:
+    """Scheduled sampling (Bengio et al. 2015): the teacher-forcing probability decays as
+    k / (k + exp(step / k)), so eta = 1 - k / (k + exp(step / k)) rises from about 0 to 1.
+
+    `k` sets the speed: eta crosses 0.5 at step k * ln(k).
+    """
+
+    def __init__(self, k: float = 1000.0):
+        if k < 1.0:
+            raise ValueError(f"sampling.k={k} must be >= 1 (the decay would start above 1).")
+        self.k = float(k)
+
+    def __call__(self, step: int) -> float:
+        x = max(step, 0) / self.k
+        if x > 700:  # exp overflows; the limit is exactly 1
+            return 1.0
+        return 1.0 - self.k / (self.k + math.exp(x))

@@ -1,0 +1,296 @@
+"""The LightningModule shared by every architecture and baseline.
+
+One training iteration of Li et al. (protocol §6.6) alternates two objectives with manual
+optimisation:
+
+1. the discriminator objective, eq. (8), on one batch;
+2. the generator objective, eq. (9) = reconstruction (7) + lambda_2 * L2(weights)
+   + lambda_adv * adversarial term, on a *different* batch.
+
+Without a discriminator the same code runs step 2 alone, which is plain (7) + L2 for the
+convolutional model and Martinez et al.'s loss for the GRU (lambda_2 = 0, gradient clipping 5).
+Validation decodes fully autoregressively (eta = 1, dropout off) on the protocol's test windows
+and reports the Euler-angle error (protocol §4) and MPJPE per action and horizon.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from functools import partial
+from typing import Any
+
+import lightning as L
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from src.data.normalization import Normalizer
+from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
+from src.metrics.kinematics import Skeleton, moving_joints
+from src.metrics.mpjpe import MPJPE
+
+
+class NonFiniteLossError(RuntimeError):
+    """Training produced a NaN or inf loss."""
+
+
+def l2_penalty(module: nn.Module) -> Tensor:
+    """TF's l2_regularizer as used by the reference: sum(w^2) / 2 over weight tensors, biases
+    excluded (protocol §6.6)."""
+    terms = [p.pow(2).sum() / 2 for p in module.parameters() if p.ndim > 1]
+    return torch.stack(terms).sum() if terms else torch.zeros(())
+
+
+class MotionPredictor(L.LightningModule):
+    def __init__(
+        self,
+        net: nn.Module,
+        normalizer: Normalizer,
+        *,
+        dataset: str,
+        actions: list[str],
+        frame_ms: float,
+        future_len: int,
+        optimizer: partial,
+        lr_decay_every: int = 10000,
+        lr_decay_gamma: float = 1.0,
+        lambda_2: float = 0.0,
+        grad_clip_norm: float | None = None,
+        eta_schedule=None,
+        discriminator: nn.Module | None = None,
+        d_optimizer: partial | None = None,
+        lambda_adv: float = 0.0,
+        lambda_2_d: float = 0.0,
+        reference_fake_slot: bool = False,
+        dim_rule: str = "future",
+        run_info: dict[str, Any] | None = None,
+    ):
+        super().__init__()
+        self.automatic_optimization = False
+        self.net = net
+        self.normalizer = normalizer
+        self.discriminator = discriminator
+        self.dataset = dataset
+        self.actions = list(actions)
+        self.frame_ms = frame_ms
+        self.future_len = future_len
+        self.optimizer_factory = optimizer
+        self.d_optimizer_factory = d_optimizer
+        self.lr_decay_every = lr_decay_every
+        self.lr_decay_gamma = lr_decay_gamma
+        self.lambda_2 = lambda_2
+        self.grad_clip_norm = grad_clip_norm
+        self.eta_schedule = eta_schedule
+        self.lambda_adv = lambda_adv
+        self.lambda_2_d = lambda_2_d
+        self.reference_fake_slot = reference_fake_slot
+        self.run_info = run_info or {}
+        # Training iterations done, saved in the state dict so eta and logging resume exactly.
+        self.register_buffer("iteration", torch.zeros((), dtype=torch.long))
+        self._recent_losses: deque[dict[str, float]] = deque(maxlen=5)
+
+        skeleton = Skeleton.load(dataset)
+        self.euler = EulerAngleError(len(self.actions), future_len, dim_rule=dim_rule)
+        self.mpjpe = MPJPE(
+            skeleton, moving_joints(skeleton, normalizer.used.cpu()), len(self.actions), future_len
+        )
+        self.horizons = horizon_frame_indices(frame_ms, future_len)
+        self.last_results: dict[str, Tensor] = {}
+
+    @property
+    def adversarial(self) -> bool:
+        return self.discriminator is not None and self.lambda_adv > 0
+
+    @property
+    def trainable(self) -> bool:
+        return any(p.requires_grad for p in self.net.parameters())
+
+    # ---------------------------------------------------------------- optimisation
+    def configure_optimizers(self):
+        if not self.trainable:
+            raise RuntimeError(
+                f"{type(self.net).__name__} has no trainable parameters; evaluate it with "
+                "`python -m src.eval model=...` instead of training it."
+            )
+        opt_g = self.optimizer_factory(params=self.net.parameters())
+        optimizers = [opt_g]
+        if self.adversarial:
+            optimizers.append(self.d_optimizer_factory(params=self.discriminator.parameters()))
+        # lr x gamma every `lr_decay_every` iterations (protocol §5, §6.6); stepped once per
+        # iteration by hand because optimisation is manual.
+        schedulers = [
+            torch.optim.lr_scheduler.StepLR(o, self.lr_decay_every, self.lr_decay_gamma)
+            for o in optimizers
+        ]
+        return optimizers, schedulers
+
+    def _eta(self) -> float:
+        return 1.0 if self.eta_schedule is None else float(self.eta_schedule(int(self.iteration)))
+
+    def _sequences(self, observed: Tensor, tail: Tensor, future: Tensor) -> Tensor:
+        """The 75-frame sequence the discriminator judges: observed frames then `tail`.
+
+        The reference code put the first ground-truth future frame in the slot of the last
+        observed frame (protocol §6.5); `reference_fake_slot` reproduces that for comparison.
+        """
+        if self.reference_fake_slot:
+            observed = torch.cat([observed[:, :-1], future[:, :1]], dim=1)
+        return torch.cat([observed, tail], dim=1)
+
+    def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        observed, future, action = batch["observed"], batch["future"], batch["action"]
+        eta = self._eta()
+        optimizers = self.optimizers()
+        optimizers = optimizers if isinstance(optimizers, list) else [optimizers]
+        schedulers = self.lr_schedulers()
+        schedulers = schedulers if isinstance(schedulers, list) else [schedulers]
+        logs: dict[str, float] = {"train/eta": eta}
+
+        if self.adversarial:
+            # The discriminator and generator see different random batches (protocol §6.6);
+            # the datamodule draws two batches per step for this.
+            (obs_d, obs_g), (fut_d, fut_g), (act_d, act_g) = (
+                observed.chunk(2),
+                future.chunk(2),
+                action.chunk(2),
+            )
+            opt_d = optimizers[1]
+            self.toggle_optimizer(opt_d)
+            with torch.no_grad():
+                fake = self.net(obs_d, fut_d.shape[1], action=act_d, future=fut_d, eta=eta)
+            logit_real = self.discriminator(self._sequences(obs_d, fut_d, fut_d), act_d)
+            logit_fake = self.discriminator(self._sequences(obs_d, fake, fut_d), act_d)
+            # eq. (8): -log D(real) - log(1 - D(fake))
+            loss_d_adv = F.binary_cross_entropy_with_logits(
+                logit_real, torch.ones_like(logit_real)
+            ) + F.binary_cross_entropy_with_logits(logit_fake, torch.zeros_like(logit_fake))
+            loss_d = loss_d_adv + self.lambda_2_d * l2_penalty(self.discriminator)
+            self._check_finite(loss_d=loss_d)
+            opt_d.zero_grad()
+            self.manual_backward(loss_d)
+            opt_d.step()
+            self.untoggle_optimizer(opt_d)
+            logs.update({"train/loss_d": loss_d.item(), "train/d_real": logit_real.mean().item()})
+            observed, future, action = obs_g, fut_g, act_g
+
+        opt_g = optimizers[0]
+        if self.adversarial:
+            self.toggle_optimizer(opt_g)
+        pred = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
+        loss_recon = F.mse_loss(pred, future)  # eq. (7), mean over batch x T x D as the reference
+        loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else pred.new_zeros(())
+        loss_g = loss_recon + self.lambda_2 * loss_l2
+        if self.adversarial:
+            logit = self.discriminator(self._sequences(observed, pred, future), action)
+            # eq. (9), non-saturating form -log D(fake) as in the reference (protocol §6.5)
+            loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+            loss_g = loss_g + self.lambda_adv * loss_adv
+            logs["train/loss_adv"] = loss_adv.item()
+        self._check_finite(loss_g=loss_g, loss_recon=loss_recon)
+        opt_g.zero_grad()
+        self.manual_backward(loss_g)
+        if self.grad_clip_norm:
+            self.clip_gradients(
+                opt_g, gradient_clip_val=self.grad_clip_norm, gradient_clip_algorithm="norm"
+            )
+        opt_g.step()
+        if self.adversarial:
+            self.untoggle_optimizer(opt_g)
+        for sch in schedulers:
+            sch.step()
+        self.iteration += 1
+
+        logs.update(
+            {
+                "train/loss_g": loss_g.item(),
+                "train/loss_recon": loss_recon.item(),
+                "train/loss_l2": loss_l2.item(),
+                "train/lr": opt_g.param_groups[0]["lr"],
+            }
+        )
+        if self.adversarial:
+            logs["train/lr_d"] = optimizers[1].param_groups[0]["lr"]
+        self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
+        self.log("train/loss_recon_bar", loss_recon, prog_bar=True, logger=False)
+        self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
+
+    def _check_finite(self, **losses: Tensor) -> None:
+        bad = {k: v.item() for k, v in losses.items() if not torch.isfinite(v)}
+        if bad:
+            raise NonFiniteLossError(
+                f"non-finite loss at training iteration {int(self.iteration)}: {bad}. "
+                f"Last finite losses (oldest first): {list(self._recent_losses) or 'none yet'}. "
+                "The last checkpoint written before this point is kept in the run's "
+                "checkpoints/ folder; lower the learning rate or check the data, then resume "
+                "with ckpt_path=.../last.ckpt."
+            )
+
+    # ---------------------------------------------------------------- evaluation
+    def forward(self, observed: Tensor, future_len: int, action: Tensor | None = None) -> Tensor:
+        """Fully autoregressive prediction in normalised space (eta = 1, no ground truth)."""
+        return self.net(observed, future_len, action=action)
+
+    def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        self._evaluate(batch)
+
+    def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
+        self._evaluate(batch)
+
+    def _evaluate(self, batch: dict[str, Tensor]) -> None:
+        future = batch["future"]
+        pred = self(batch["observed"], future.shape[1], action=batch["action"])
+        pred_full = self.normalizer.unnormalize(pred)
+        # Ground truth goes through the same unnormalisation as the prediction, as in the
+        # reference code (protocol §2.2, §4.1).
+        gt_full = self.normalizer.unnormalize(future)
+        gt_obs_full = self.normalizer.unnormalize(batch["observed"])
+        self.euler.update(pred_full, gt_full, batch["action"], gt_observed_full=gt_obs_full)
+        self.mpjpe.update(pred_full, gt_full, batch["action"])
+
+    def on_validation_epoch_end(self) -> None:
+        self._finish_evaluation("val")
+
+    def on_test_epoch_end(self) -> None:
+        self._finish_evaluation("test")
+
+    def _finish_evaluation(self, stage: str) -> None:
+        euler, mpjpe = self.euler.compute(), self.mpjpe.compute()
+        self.euler.reset()
+        self.mpjpe.reset()
+        self.last_results = {"euler": euler.cpu(), "mpjpe": mpjpe.cpu()}
+        if self.trainer.sanity_checking:
+            return
+        logs: dict[str, float] = {}
+        present = [i for i in range(len(self.actions)) if not math.isnan(euler[i, 0].item())]
+        for name, values in (("euler", euler), ("mpjpe", mpjpe)):
+            for ms, k in self.horizons.items():
+                # Zero-padded ms so TensorBoard sorts the tags by horizon.
+                for i in present:
+                    logs[f"{stage}_{name}/{self.actions[i]}/{ms:04d}ms"] = values[i, k].item()
+                if present:
+                    logs[f"{stage}_{name}/average/{ms:04d}ms"] = values[present, k].mean().item()
+        if present:
+            idx = list(self.horizons.values())
+            logs[f"{stage}/euler_avg"] = euler[present][:, idx].mean().item()
+            logs[f"{stage}/mpjpe_avg"] = mpjpe[present][:, idx].mean().item()
+        self.log_dict(logs, sync_dist=False)
+
+    # ---------------------------------------------------------------- checkpoints
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint["motion"] = {
+            **self.run_info,
+            "dataset": self.dataset,
+            "actions": self.actions,
+            "pose_dim": self.normalizer.pose_dim,
+            "num_features": self.normalizer.num_features,
+            "architecture": type(self.net).__name__,
+            "adversarial": self.adversarial,
+        }
+        # The random state (dropout) so that a resumed run continues bit for bit on CPU.
+        checkpoint["rng"] = {"torch": torch.get_rng_state()}
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        rng = checkpoint.get("rng")
+        if rng is not None:
+            torch.set_rng_state(rng["torch"])

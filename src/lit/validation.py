@@ -1,0 +1,72 @@
+"""Checks a composed config before anything expensive runs, and turns the project's own errors
+into one clear line instead of a traceback."""
+
+from __future__ import annotations
+
+import functools
+import logging
+import sys
+
+from omegaconf import DictConfig
+
+from src.data.errors import DataError
+from src.lit.factory import CheckpointError, ConfigError
+from src.lit.predictor import NonFiniteLossError
+
+log = logging.getLogger("src")
+
+USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
+
+
+def friendly_errors(fn):
+    """Print the project's own errors as one message and exit with status 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except USER_ERRORS as err:
+            log.error("%s: %s", type(err).__name__, err)
+            print(f"error: {err}", file=sys.stderr)
+            sys.exit(2)
+
+    return wrapper
+
+
+def _require(ok: bool, message: str) -> None:
+    if not ok:
+        raise ConfigError(message)
+
+
+def validate_train_config(cfg: DictConfig) -> None:
+    """Out-of-range values are rejected here, naming the allowed range."""
+    _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
+    _require(cfg.val_every > 0, f"val_every={cfg.val_every} must be a positive integer.")
+    _require(cfg.data.batch_size > 0, f"data.batch_size={cfg.data.batch_size} must be > 0.")
+    _require(
+        cfg.data.future_len >= 1, f"data.future_len={cfg.data.future_len} must be >= 1 frame."
+    )
+    lr = cfg.model.get("optimizer", {}).get("lr") if cfg.get("model") else None
+    if lr is not None:
+        _require(lr > 0, f"model.optimizer.lr={lr} must be a positive learning rate.")
+    adv = cfg.get("adversarial")
+    if adv is not None and adv.get("enabled") and adv.get("optimizer") is not None:
+        _require(adv.optimizer.lr > 0, f"adversarial.optimizer.lr={adv.optimizer.lr} must be > 0.")
+        _require(adv.lambda_adv >= 0, f"adversarial.lambda_adv={adv.lambda_adv} must be >= 0.")
+    for key in ("eta", "start", "end"):
+        value = cfg.get("sampling", {}).get(key)
+        if value is not None:
+            _require(
+                0.0 <= value <= 1.0,
+                f"sampling.{key}={value} is outside [0, 1]; eta mixes prediction (1) and "
+                "ground truth (0).",
+            )
+    C = cfg.model.net.get("C") if cfg.get("model") else None
+    if C is not None:
+        _require(
+            1 <= C <= cfg.data.observed_len,
+            f"model.net.C={C} must be between 1 and data.observed_len={cfg.data.observed_len} "
+            "(the short-term window lies inside the observed frames).",
+        )
+    rule = cfg.metrics.dim_rule
+    _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")

@@ -1,0 +1,205 @@
+"""The Euler-angle error of Martinez et al. 2017 / Li et al. 2018 (protocol §4).
+
+Per test window: unnormalised exp-map frames -> Euler angles per joint triple -> zero the global
+translation and rotation (cols 0-5) -> keep the dims whose ground-truth Euler std over time is
+> 1e-4 -> per-frame L2 norm of the difference over the kept dims (no angle wrapping). The table
+value for an action is the plain mean over its windows (protocol §4.1 step 6).
+
+The dims are chosen from the ground truth, never from the prediction: choosing them from the
+prediction (the old bug of protocol §8) gives a constant prediction zero error.
+"""
+
+import torch
+import torchmetrics
+from torch import Tensor
+
+from src.metrics.rotations import MetricInputError, expmap_to_euler
+
+HORIZONS_MS = (80, 160, 320, 400, 560, 1000)
+STD_THRESHOLD = 1e-4  # protocol §4.1 step 4
+DIM_RULES = ("future", "window")
+
+
+def horizon_frame_indices(frame_ms: float = 40, num_frames: int = 25) -> dict[int, int]:
+    """Map each horizon of HORIZONS_MS to its 0-based index into the predicted frames.
+
+    Predicted frame k lies (k + 1) * frame_ms after the last observed frame (protocol §4.3), so
+    80 ms -> 1, 160 -> 3, 320 -> 7, 400 -> 9, 560 -> 13, 1000 -> 24 at 40 ms per frame. Only
+    horizons with index < num_frames are returned. The CMU tables of Li et al. use the same
+    indices and labels (frame_ms = 40) although that data is probably at 30 Hz (protocol §1.5).
+    """
+    if frame_ms <= 0 or num_frames < 1:
+        raise MetricInputError(
+            f"frame_ms must be > 0 and num_frames >= 1, got {frame_ms} and {num_frames}"
+        )
+    out = {}
+    for ms in HORIZONS_MS:
+        steps = ms / frame_ms
+        if abs(steps - round(steps)) > 1e-6:
+            raise MetricInputError(
+                f"horizon {ms} ms is not a whole number of {frame_ms} ms frames; the published "
+                "tables label frames at 40 ms (use frame_ms=40, also for CMU, protocol §4.3)"
+            )
+        k = round(steps) - 1
+        if k < num_frames:
+            out[ms] = k
+    return out
+
+
+def _check_frames(x: Tensor, name: str) -> None:
+    if not isinstance(x, Tensor) or not x.is_floating_point():
+        raise MetricInputError(f"{name} must be a floating torch.Tensor of unnormalised exp-maps")
+    F = x.shape[-1] if x.dim() else 0
+    if F < 6 or F % 3 != 0:
+        raise MetricInputError(
+            f"{name} has {F} columns; expected 3 root-translation columns plus exp-map triples "
+            "(99 for H3.6M, 117 for CMU). Pass unnormalised full frames (normalizer.unnormalize)."
+        )
+
+
+def expmap_frames_to_euler(x: Tensor) -> Tensor:
+    """Full exp-map frames (..., F) to Euler frames (..., F) as the metric sees them.
+
+    Triples starting at column 3 are converted (protocol §4.1 step 2, as in [M]); then columns
+    0-5, the global translation and rotation, are set to 0 (step 3).
+    """
+    _check_frames(x, "frames")
+    euler = expmap_to_euler(x[..., 3:].unflatten(-1, (-1, 3))).flatten(-2)
+    return torch.cat((torch.zeros_like(x[..., :6]), euler[..., 3:]), -1)
+
+
+def selected_dims(
+    gt_euler: Tensor, dim_rule: str = "future", observed_euler: Tensor | None = None
+) -> Tensor:
+    """Bool mask (B, F) of the Euler dims the error uses in each window (protocol §4.1 step 4).
+
+    gt_euler (B, T, F) and observed_euler (B, T_obs, F) are Euler frames from
+    expmap_frames_to_euler. A dim is kept where the ground-truth population std over time is
+    > 1e-4, the std taken over the future frames ("future", [M]) or observed + future ("window",
+    [L]). Never over the prediction: that was the bug of protocol §8.
+    """
+    if dim_rule not in DIM_RULES:
+        raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
+    if dim_rule == "future":
+        if gt_euler.shape[1] < 2:
+            raise MetricInputError(
+                "dim_rule='future' needs at least 2 future frames (the std over one frame is 0, "
+                "so no dim would be kept); predict more frames or use dim_rule='window'"
+            )
+        reference = gt_euler
+    else:
+        if observed_euler is None:
+            raise MetricInputError("dim_rule='window' needs gt_observed_full (B, T_obs, F)")
+        if observed_euler.dim() != 3 or (
+            observed_euler.shape[0] != gt_euler.shape[0]
+            or observed_euler.shape[2] != gt_euler.shape[2]
+        ):
+            raise MetricInputError(
+                f"gt_observed_full must be (B, T_obs, F) = ({gt_euler.shape[0]}, T_obs, "
+                f"{gt_euler.shape[2]}), got {tuple(observed_euler.shape)}"
+            )
+        reference = torch.cat((observed_euler.to(gt_euler), gt_euler), 1)
+    return reference.std(dim=1, correction=0) > STD_THRESHOLD
+
+
+def euler_error_per_frame(
+    pred_full: Tensor,
+    gt_full: Tensor,
+    dim_rule: str = "future",
+    gt_observed_full: Tensor | None = None,
+) -> Tensor:
+    """Per-window, per-frame Euler error (B, T) in float64 (protocol §4.1 steps 1-5).
+
+    pred_full, gt_full: unnormalised exp-map (B, T, F). Dims are kept where the ground-truth
+    Euler std (population, over time, per window) exceeds 1e-4, computed over
+    - "future": the T future frames ([M] after its PR #17 fix; the default), or
+    - "window": observed + future frames ([L]); needs gt_observed_full (B, T_obs, F).
+    The error of a frame is the L2 norm of the Euler difference over the kept dims, without
+    wrapping angle differences (as the reference).
+    """
+    _check_frames(pred_full, "pred_full")
+    _check_frames(gt_full, "gt_full")
+    if pred_full.dim() != 3 or pred_full.shape != gt_full.shape:
+        raise MetricInputError(
+            f"pred_full and gt_full must both be (B, T, F); got {tuple(pred_full.shape)} and "
+            f"{tuple(gt_full.shape)}"
+        )
+    if dim_rule not in DIM_RULES:
+        raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
+    observed = None
+    if dim_rule == "window" and gt_observed_full is not None:
+        _check_frames(gt_observed_full, "gt_observed_full")
+        observed = expmap_frames_to_euler(gt_observed_full.to(gt_full.device).double())
+
+    pred = expmap_frames_to_euler(pred_full.double())
+    gt = expmap_frames_to_euler(gt_full.double())
+    keep = selected_dims(gt, dim_rule, observed)
+    sq = (gt - pred).square() * keep.unsqueeze(1)
+    return sq.sum(-1).sqrt()
+
+
+def check_action_indices(action: Tensor, batch: int, num_actions: int) -> Tensor:
+    """Validate an action-index tensor (B,) against the metric's num_actions; return it as long."""
+    if not isinstance(action, Tensor) or action.dtype not in (torch.int32, torch.int64):
+        raise MetricInputError("action must be an integer tensor (B,) of action indices")
+    if action.shape != (batch,):
+        raise MetricInputError(f"action must have shape ({batch},), got {tuple(action.shape)}")
+    if batch and (action.min() < 0 or action.max() >= num_actions):
+        raise MetricInputError(
+            f"action indices must lie in [0, {num_actions}), got {action.min()}..{action.max()}"
+        )
+    return action.long()
+
+
+class EulerAngleError(torchmetrics.Metric):
+    """Mean Euler error per action and future frame, (A, T), over all windows seen.
+
+    compute() returns NaN for actions without any window; callers show them as absent. States are
+    sums, so the value is the same however windows are split into batches or processes.
+    """
+
+    full_state_update = False
+    is_differentiable = False
+    higher_is_better = False
+
+    def __init__(self, num_actions: int, num_frames: int, dim_rule: str = "future", **kwargs):
+        super().__init__(**kwargs)
+        if dim_rule not in DIM_RULES:
+            raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
+        self.num_actions, self.num_frames, self.dim_rule = num_actions, num_frames, dim_rule
+        zeros = torch.zeros(num_actions, num_frames, dtype=torch.float64)
+        self.add_state("error_sum", default=zeros, dist_reduce_fx="sum")
+        self.add_state(
+            "count", default=torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum"
+        )
+
+    def update(
+        self,
+        pred_full: Tensor,
+        gt_full: Tensor,
+        action: Tensor,
+        gt_observed_full: Tensor | None = None,
+    ) -> None:
+        if (
+            not isinstance(pred_full, Tensor)
+            or pred_full.dim() != 3
+            or pred_full.shape[1] != self.num_frames
+        ):
+            raise MetricInputError(
+                f"expected (B, {self.num_frames}, F) predictions, got {tuple(pred_full.shape)}; "
+                "num_frames of the metric must equal the number of predicted frames"
+            )
+        err = euler_error_per_frame(pred_full, gt_full, self.dim_rule, gt_observed_full)
+        device = self.error_sum.device
+        action = check_action_indices(action, err.shape[0], self.num_actions).to(device)
+        self.error_sum.index_add_(0, action, err.to(device))
+        self.count += torch.bincount(action, minlength=self.num_actions)
+
+    def compute(self) -> Tensor:
+        return mean_or_nan(self.error_sum, self.count)
+
+
+def mean_or_nan(error_sum: Tensor, count: Tensor) -> Tensor:
+    """error_sum (A, T) / count (A,), NaN where count is 0."""
+    mean = error_sum / count.clamp_min(1).unsqueeze(1).to(error_sum.dtype)
+    return torch.where(count.unsqueeze(1) > 0, mean, torch.full_like(mean, float("nan")))

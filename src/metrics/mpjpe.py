@@ -1,0 +1,82 @@
+"""Mean per-joint position error (MPJPE) of predicted poses, per action and future frame.
+
+Not a metric of the two papers (they report only the Euler error of protocol §4); it is the
+position-space error later work reports, computed here from the same unnormalised exp-maps by
+forward kinematics with the global translation and rotation zeroed, in the skeleton's units
+(mm on H3.6M).
+"""
+
+import torch
+import torchmetrics
+from torch import Tensor
+
+from src.metrics.euler_error import check_action_indices, mean_or_nan
+from src.metrics.kinematics import Skeleton, forward_kinematics
+from src.metrics.rotations import MetricInputError
+
+
+def mpjpe_per_frame(
+    pred_full: Tensor, gt_full: Tensor, skeleton: Skeleton, joints: Tensor
+) -> Tensor:
+    """Per-window, per-frame MPJPE (B, T) in float64: mean over `joints` of the 3D distance."""
+    if not isinstance(pred_full, Tensor) or not isinstance(gt_full, Tensor):
+        raise MetricInputError("pred_full and gt_full must be torch.Tensors (B, T, F)")
+    if pred_full.dim() != 3 or pred_full.shape != gt_full.shape:
+        raise MetricInputError(
+            f"pred_full and gt_full must both be (B, T, F); got {tuple(pred_full.shape)} and "
+            f"{tuple(gt_full.shape)}"
+        )
+    pred = forward_kinematics(pred_full.double(), skeleton)
+    gt = forward_kinematics(gt_full.double(), skeleton)
+    joints = joints.to(pred.device)
+    return torch.linalg.vector_norm(pred[..., joints, :] - gt[..., joints, :], dim=-1).mean(-1)
+
+
+class MPJPE(torchmetrics.Metric):
+    """Mean MPJPE per action and future frame, (A, T); NaN for actions without windows.
+
+    joints: the joints to average over, e.g. moving_joints(skeleton, used_columns) (22 on H3.6M).
+    """
+
+    full_state_update = False
+    is_differentiable = False
+    higher_is_better = False
+
+    def __init__(
+        self, skeleton: Skeleton, joints: Tensor, num_actions: int, num_frames: int, **kwargs
+    ):
+        super().__init__(**kwargs)
+        joints = torch.as_tensor(joints, dtype=torch.long)
+        if joints.dim() != 1 or joints.numel() == 0:
+            raise MetricInputError("joints must be a non-empty 1-D tensor of joint indices")
+        if joints.min() < 0 or joints.max() >= skeleton.num_joints:
+            raise MetricInputError(
+                f"joint indices must lie in [0, {skeleton.num_joints}) for skeleton "
+                f"{skeleton.name!r}, got {joints.tolist()}"
+            )
+        self.skeleton, self.joints = skeleton, joints
+        self.num_actions, self.num_frames = num_actions, num_frames
+        zeros = torch.zeros(num_actions, num_frames, dtype=torch.float64)
+        self.add_state("error_sum", default=zeros, dist_reduce_fx="sum")
+        self.add_state(
+            "count", default=torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum"
+        )
+
+    def update(self, pred_full: Tensor, gt_full: Tensor, action: Tensor) -> None:
+        if (
+            not isinstance(pred_full, Tensor)
+            or pred_full.dim() != 3
+            or pred_full.shape[1] != self.num_frames
+        ):
+            raise MetricInputError(
+                f"expected (B, {self.num_frames}, F) predictions, got {tuple(pred_full.shape)}; "
+                "num_frames of the metric must equal the number of predicted frames"
+            )
+        err = mpjpe_per_frame(pred_full, gt_full, self.skeleton, self.joints)
+        device = self.error_sum.device
+        action = check_action_indices(action, err.shape[0], self.num_actions).to(device)
+        self.error_sum.index_add_(0, action, err.to(device))
+        self.count += torch.bincount(action, minlength=self.num_actions)
+
+    def compute(self) -> Tensor:
+        return mean_or_nan(self.error_sum, self.count)

@@ -1,0 +1,94 @@
+"""The published result tables of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (1-2).
+
+published_results.csv is a byte copy of the project's shared docs/published_results.csv (see
+published_results.md there): one value per row, `paper,table,dataset,method,action,ms,value`,
+values as printed in the papers (slips included, N/A cells omitted). Some tables have an
+"average" row; it is the paper's own average, over that table's actions, not recomputed.
+
+Paper keys: "li2018", "martinez2017". Method keys, e.g. "conv_s2s" (Li's "Ours"), "rrnn"
+(Martinez's residual model retrained by Li), "zero_velocity", "residual_sup_ma".
+"""
+
+import csv
+import functools
+import io
+from importlib import resources
+from typing import NamedTuple
+
+
+class ReportingError(ValueError):
+    """A published-results lookup or a result table got inconsistent or unknown input."""
+
+
+class PublishedRow(NamedTuple):
+    paper: str
+    table: int
+    dataset: str
+    method: str
+    action: str
+    ms: int
+    value: float
+
+
+@functools.cache
+def _rows() -> tuple[PublishedRow, ...]:
+    text = resources.files("src.reporting").joinpath("published_results.csv").read_text()
+    reader = csv.DictReader(io.StringIO(text))
+    return tuple(
+        PublishedRow(
+            r["paper"],
+            int(r["table"]),
+            r["dataset"],
+            r["method"],
+            r["action"],
+            int(r["ms"]),
+            float(r["value"]),
+        )
+        for r in reader
+    )
+
+
+def load_published() -> list[PublishedRow]:
+    """All published numbers, one row per table cell, in file order."""
+    return list(_rows())
+
+
+def find_published(dataset: str, method_key: str) -> list[tuple[str, int]]:
+    """The (paper, table) pairs that report `method_key` on `dataset`, sorted; [] if none."""
+    return sorted(
+        {(r.paper, r.table) for r in _rows() if (r.dataset, r.method) == (dataset, method_key)}
+    )
+
+
+def published_table(
+    paper: str, table: int | None, dataset: str, method: str
+) -> dict[str, dict[int, float]]:
+    """Published values {action: {ms: value}} of one method in one paper.
+
+    table=None merges all tables of the paper that report the method on the dataset (e.g. Li's
+    Tables 1 and 2 together cover the 15 H3.6M actions). A cell reported with two different
+    values in the merged tables raises; pick the table then.
+    """
+    rows = [
+        r
+        for r in _rows()
+        if (r.paper, r.dataset, r.method) == (paper, dataset, method)
+        and (table is None or r.table == table)
+    ]
+    if not rows:
+        known = sorted({(r.paper, r.table, r.dataset, r.method) for r in _rows()})
+        listing = "; ".join(f"{p} T{t} {d} {m}" for p, t, d, m in known)
+        raise ReportingError(
+            f"no published numbers for paper={paper!r} table={table!r} dataset={dataset!r} "
+            f"method={method!r}. Available: {listing}"
+        )
+    out: dict[str, dict[int, float]] = {}
+    for r in rows:
+        cells = out.setdefault(r.action, {})
+        if r.ms in cells and cells[r.ms] != r.value:
+            raise ReportingError(
+                f"{paper} {method} {dataset}: {r.action} at {r.ms} ms is {cells[r.ms]} in one "
+                f"table and {r.value} in table {r.table}; pass table= to choose"
+            )
+        cells[r.ms] = r.value
+    return out

@@ -1,0 +1,93 @@
+"""Shared fixtures: configs composed into tmp_path, a synthetic dataset written once per session,
+and the location of the real archives (MOTION_ARCHIVES)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, open_dict
+
+from src.lit.factory import register_resolvers
+
+ROOT = Path(__file__).resolve().parents[1]
+CONF = ROOT / "conf"
+register_resolvers()
+
+
+@pytest.fixture(scope="session")
+def archives() -> Path:
+    """Folder with the real h3.6m.zip / cmu_mocap.zip, or skip."""
+    value = os.environ.get("MOTION_ARCHIVES")
+    if not value:
+        pytest.skip("real data not provided: set MOTION_ARCHIVES to the folder with the archives")
+    path = Path(value)
+    if not path.is_dir():
+        pytest.skip(f"MOTION_ARCHIVES={value} is not a folder")
+    return path
+
+
+@pytest.fixture(scope="session")
+def synthetic_data_dir(tmp_path_factory) -> Path:
+    """A data_dir holding the synthetic H3.6M-format dataset, written once per session."""
+    from src.data.synthetic import write_synthetic_h36m
+
+    root = tmp_path_factory.mktemp("data")
+    write_synthetic_h36m(root / "synthetic")
+    return root
+
+
+def compose_config(
+    config_name: str, overrides: list[str], output_dir: Path, data_dir: Path | None = None
+) -> DictConfig:
+    """Compose conf/<config_name>.yaml as `python -m src.<config_name>` would, writing into
+    output_dir. Sets the HydraConfig singleton so ${hydra:...} interpolations resolve."""
+    GlobalHydra.instance().clear()
+    extra = [f"paths.log_dir={output_dir}"]
+    if data_dir is not None:
+        extra.append(f"paths.data_dir={data_dir}")
+    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
+        cfg = compose(config_name, overrides=[*extra, *overrides], return_hydra_config=True)
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(output_dir)
+        cfg.hydra.job.num = 0
+    HydraConfig().set_config(cfg)
+    return cfg
+
+
+@pytest.fixture
+def train_cfg(tmp_path, synthetic_data_dir):
+    """A factory: train_cfg(*overrides) -> composed train config on synthetic data."""
+
+    def make(*overrides: str) -> DictConfig:
+        return compose_config(
+            "train",
+            ["data=synthetic", "trainer=cpu", "iterations=4", "val_every=2", *overrides],
+            tmp_path / "run",
+            synthetic_data_dir,
+        )
+
+    return make
+
+
+def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: int = 600):
+    """Run `python -m <module> args...` as a user would; returns the CompletedProcess."""
+    env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, "-m", module, f"paths.log_dir={log_dir}", *args]
+    return subprocess.run(
+        cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout
+    )
+
+
+@pytest.fixture(scope="session")
+def real_data_dir(archives, tmp_path_factory) -> Path:
+    """A writable data_dir where the real archives are unpacked and parsed once per session.
+    MOTION_DATA_DIR, when set, is reused so repeated local runs skip the unpacking."""
+    reuse = os.environ.get("MOTION_DATA_DIR")
+    return Path(reuse) if reuse else tmp_path_factory.mktemp("real_data")

@@ -1,0 +1,329 @@
+"""DataModules end to end on synthetic files in the real text format (no real data needed)."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from src.data import CMUDataModule, H36MDataModule, SyntheticDataModule
+from src.data.errors import DataError
+from src.data.layout import h36m_files
+from src.data.normalization import Normalizer
+from src.data.reader import read_motion_file
+from src.data.synthetic import H36M_USED_COLUMNS, write_synthetic_h36m
+from src.data.windows import cmu_test_starts, srnn_h36m_starts
+
+SMALL = dict(batch_size=4, steps_per_epoch=3, eval_batch_size=5)
+
+
+@pytest.fixture
+def synthetic(tmp_path):
+    dm = SyntheticDataModule(tmp_path, **SMALL)
+    dm.prepare_data()
+    dm.setup("fit")
+    return dm
+
+
+# ---- synthetic H3.6M --------------------------------------------------------------------------
+
+
+def test_synthetic_files_are_in_the_real_format(tmp_path):
+    (path,) = [p for p in write_synthetic_h36m(tmp_path, (1,), ("walking",)) if "_1" in p.name]
+    assert path.relative_to(tmp_path).as_posix() == "h3.6m/dataset/S1/walking_1.txt"
+    raw = path.read_bytes()
+    assert b"\r" not in raw and raw.endswith(b"\n")
+    lines = raw.decode().splitlines()
+    assert len(lines) == 400
+    fields = lines[0].split(",")
+    assert len(fields) == 99 and all(len(f.split(".")[1]) == 7 for f in fields)
+    ignored = [c for c in range(99) if c not in H36M_USED_COLUMNS]
+    assert all(line.split(",")[c] == "0.0000000" for line in lines for c in ignored)
+
+
+def test_synthetic_module_attributes(synthetic):
+    dm = synthetic
+    assert (dm.dataset_name, dm.conv_padding, dm.frame_ms) == ("h36m", "same", 40)
+    assert (dm.pose_dim, dm.num_features) == (54, 99)
+    assert dm.normalizer.dim_used.tolist() == list(H36M_USED_COLUMNS)
+    assert dm.actions == ["walking", "eating", "smoking"] and dm.num_actions == 3
+    assert (dm.observed_len, dm.future_len, dm.draws_per_step) == (50, 25, 1)
+    assert dm.absent_actions == {} and dm.missing_files == []
+    assert dm.test_sequence("eating", 1).shape == (200, 99)  # 400 raw frames -> even frames
+
+
+def test_normalizer_uses_raw_50hz_training_frames(synthetic, tmp_path):
+    entries = h36m_files([1], synthetic.actions, "train")
+    raw = [read_motion_file(tmp_path / "synthetic" / e.relpath, 99) for e in entries]
+    expected = Normalizer.from_sequences(raw)
+    assert torch.equal(synthetic.normalizer.mean, expected.mean)
+    downsampled = Normalizer.from_sequences([r[::2] for r in raw])
+    assert not torch.allclose(synthetic.normalizer.mean, downsampled.mean, atol=1e-6, rtol=0)
+
+
+def test_test_sequence_is_downsampled_raw(synthetic, tmp_path):
+    raw = read_motion_file(tmp_path / "synthetic/h3.6m/dataset/S5/smoking_2.txt", 99)
+    np.testing.assert_array_equal(synthetic.test_sequence("smoking", 1), raw[::2])
+    with pytest.raises(DataError, match="not configured"):
+        synthetic.test_sequence("greeting")
+
+
+def test_srnn_eval_windows_and_their_content(synthetic):
+    dm = synthetic
+    assert len(dm.eval_windows) == 24
+    for action in dm.actions:
+        ws = [w for w in dm.eval_windows if w.action == action]
+        expected = srnn_h36m_starts(200, 200)
+        assert [(w.subaction, w.start) for w in ws] == expected
+        assert [w.sequence for w in ws] == [f"S5/{action}_{s}" for s, _ in expected]
+    batches = list(dm.val_dataloader())
+    assert [len(b["window"]) for b in batches] == [5, 5, 5, 5, 4]
+    batch = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}
+    assert batch["window"].tolist() == list(range(24))
+    assert batch["observed"].shape == (24, 50, 54) and batch["future"].shape == (24, 25, 54)
+    assert batch["observed"].dtype == torch.float32 and batch["action"].dtype == torch.long
+    for i, w in enumerate(dm.eval_windows):
+        seq = torch.from_numpy(dm.test_sequence(w.action, w.subaction - 1))
+        window = dm.normalizer.normalize(seq[w.start : w.start + 75])
+        assert torch.equal(batch["observed"][i], window[:50])
+        assert torch.equal(batch["future"][i], window[50:])
+        assert batch["action"][i] == dm.actions.index(w.action)
+    assert len(list(dm.test_dataloader())) == len(batches)
+
+
+def test_train_batches(synthetic):
+    dm = synthetic
+    batches = list(dm.train_dataloader())
+    assert len(batches) == 3
+    b = batches[0]
+    assert set(b) == {"observed", "future", "action"}
+    assert b["observed"].shape == (4, 50, 54) and b["future"].shape == (4, 25, 54)
+    assert b["action"].dtype == torch.long and set(b["action"].tolist()) <= {0, 1, 2}
+    dm.draws_per_step = 2  # what the adversarial LightningModule sets
+    assert next(iter(dm.train_dataloader()))["observed"].shape == (8, 50, 54)
+
+
+@pytest.mark.parametrize("protocol", ["random", "strided"])
+def test_other_eval_protocols(tmp_path, protocol):
+    dm = SyntheticDataModule(
+        tmp_path, eval_protocol=protocol, eval_windows_per_action=7, eval_stride=20, **SMALL
+    )
+    dm.setup()
+    per_action = 7 if protocol == "random" else 2 * len(range(16, 200 - 75, 20))
+    assert len(dm.eval_windows) == 3 * per_action
+    assert all(16 <= w.start < 200 - 75 for w in dm.eval_windows)
+
+
+def test_setup_without_prepare_and_twice(tmp_path):
+    dm = SyntheticDataModule(tmp_path, **SMALL)
+    with pytest.raises(DataError, match="call prepare_data"):
+        _ = dm.pose_dim
+    dm.setup("test")
+    normalizer = dm.normalizer
+    dm.setup("fit")
+    assert dm.normalizer is normalizer
+
+
+def test_single_action_module(tmp_path):
+    dm = SyntheticDataModule(tmp_path, actions="eating", **SMALL)
+    dm.setup()
+    assert dm.actions == ["eating"] and dm.num_actions == 1 and len(dm.eval_windows) == 8
+    assert {b["action"].unique().item() for b in dm.train_dataloader()} == {0}
+
+
+# ---- partial copies -------------------------------------------------------------------------
+
+
+def test_partial_copy_full_protocol_raises_listing_files(tmp_path):
+    SyntheticDataModule(tmp_path).prepare_data()
+    gone = ["h3.6m/dataset/S5/eating_2.txt", "h3.6m/dataset/S1/smoking_1.txt"]
+    root = tmp_path / "synthetic"
+    dm = H36MDataModule(root, actions=["walking", "eating", "smoking"], train_subjects=(1,))
+    for rel in gone:
+        (root / rel).unlink()
+    with pytest.raises(DataError) as err:
+        dm.prepare_data()
+    msg = str(err.value)
+    assert all(rel in msg for rel in gone) and "data.allow_partial=true" in msg
+    assert sorted(err.value.missing) == sorted(gone)
+
+
+def test_partial_copy_allowed_reports_absent_actions(tmp_path, caplog):
+    SyntheticDataModule(tmp_path).prepare_data()
+    root = tmp_path / "synthetic"
+    (root / "h3.6m/dataset/S5/eating_2.txt").unlink()
+    (root / "h3.6m/dataset/S1/smoking_1.txt").unlink()
+    dm = H36MDataModule(
+        root, actions="walking,eating,smoking", train_subjects=[1], allow_partial=True, **SMALL
+    )
+    with caplog.at_level("WARNING"):
+        dm.prepare_data()
+        dm.setup()
+    assert "S5/eating_2.txt" in caplog.text
+    assert list(dm.absent_actions) == ["eating"]
+    assert "h3.6m/dataset/S5/eating_2.txt" in dm.absent_actions["eating"]
+    assert sorted(dm.missing_files) == [
+        "h3.6m/dataset/S1/smoking_1.txt",
+        "h3.6m/dataset/S5/eating_2.txt",
+    ]
+    assert {w.action for w in dm.eval_windows} == {"walking", "smoking"}
+    assert dm.actions == ["walking", "eating", "smoking"]  # labels unchanged
+    with pytest.raises(DataError, match="test file is missing"):
+        dm.test_sequence("eating", 1)
+
+
+def test_missing_data_root(tmp_path, monkeypatch):
+    monkeypatch.delenv("MOTION_ARCHIVES", raising=False)
+    dm = H36MDataModule(tmp_path / "empty")
+    for step in (dm.prepare_data, dm.setup):
+        with pytest.raises(DataError, match="h3.6m.zip") as err:
+            step()
+        assert "http://www.cs.stanford.edu/people/ashesh/h3.6m.zip" in str(err.value)
+
+
+def test_module_unpacks_an_archive(tmp_path, monkeypatch):
+    monkeypatch.delenv("MOTION_ARCHIVES", raising=False)
+    src = tmp_path / "src"
+    write_synthetic_h36m(src, subjects=(1, 5), actions=("walking",))
+    zip_path = tmp_path / "h3.6m.zip"
+    with zipfile.ZipFile(zip_path, "w") as zf:
+        for p in src.rglob("*.txt"):
+            zf.write(p, p.relative_to(src).as_posix())
+    dm = H36MDataModule(tmp_path / "data", archive=zip_path, actions="walking", train_subjects=[1])
+    dm.prepare_data()
+    dm.setup()
+    assert dm.pose_dim == 54 and len(dm.eval_windows) == 8
+    assert (tmp_path / "data/cache/h36m/manifest.json").is_file()
+
+
+# ---- argument validation --------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "pattern"),
+    [
+        ({"actions": "jogging"}, r"unknown h36m action.*'jogging'.*walking, eating, smoking"),
+        ({"eval_protocol": "best"}, r"eval_protocol 'best'; valid: srnn, random, strided"),
+        ({"future_len": 0}, r"future_len must be an integer >= 1"),
+        ({"observed_len": -1}, r"observed_len must be an integer >= 1"),
+        ({"batch_size": 0}, r"batch_size"),
+        ({"train_subjects": (1, 2)}, r"unknown H3.6M subject.*\[2\]"),
+        ({"train_subjects": (1, 5)}, r"test_subject=5 is also a training subject"),
+        ({"future_len": 101}, r"srnn test windows reserve 150 frames"),
+    ],
+)
+def test_invalid_arguments(tmp_path, kwargs, pattern):
+    with pytest.raises(DataError, match=pattern):
+        H36MDataModule(tmp_path, **kwargs)
+
+
+def test_long_horizon_allowed_with_random_protocol(tmp_path):
+    dm = H36MDataModule(tmp_path, future_len=101, eval_protocol="random")
+    assert dm.future_len == 101
+
+
+def test_cmu_action_validation(tmp_path):
+    with pytest.raises(DataError, match="valid actions are 'all' or any of: basketball,"):
+        CMUDataModule(tmp_path, actions=["walking", "eating"])
+
+
+# ---- CMU on hand-written files --------------------------------------------------------------
+
+
+def _write_cmu(root: Path, actions=("running", "walking"), raw=220, skip=()):
+    rng = np.random.default_rng(0)
+    for split, count in (("train", 5), ("test", 1)):
+        for action in actions:
+            for k in range(1, count + 1):
+                rel = f"cmu_mocap/{split}/{action}/{action}_{k}.txt"
+                if rel in skip:
+                    continue
+                x = np.zeros((raw + 2 * k, 117))
+                x[:, :70] = np.cumsum(rng.normal(0, 0.05, (raw + 2 * k, 70)), axis=0)
+                (root / rel).parent.mkdir(parents=True, exist_ok=True)
+                np.savetxt(root / rel, x, fmt="%.7f", delimiter=",")
+    (root / "cmu_mocap/train/walking_extra").mkdir(parents=True)  # ignored folder
+    (root / "cmu_mocap/train/walking_extra/walking_extra_1.txt").write_text("garbage\n")
+
+
+def test_cmu_module(tmp_path):
+    _write_cmu(tmp_path)
+    dm = CMUDataModule(tmp_path, actions=["walking", "running"], future_len=10, **SMALL)
+    dm.prepare_data()
+    dm.setup()
+    assert (dm.dataset_name, dm.conv_padding, dm.frame_ms) == ("cmu", "valid", 40)
+    assert (dm.num_features, dm.pose_dim) == (117, 70)
+    assert dm.actions == ["running", "walking"]
+    starts = cmu_test_starts(111, 50, 10)  # test file: 222 raw frames -> 111
+    assert [w.start for w in dm.eval_windows] == starts + starts
+    assert {w.sequence for w in dm.eval_windows} == {
+        "test/running/running_1",
+        "test/walking/walking_1",
+    }
+    b = next(iter(dm.train_dataloader()))
+    assert b["observed"].shape == (4, 50, 70) and b["future"].shape == (4, 10, 70)
+
+
+def test_cmu_partial(tmp_path):
+    _write_cmu(tmp_path, skip=("cmu_mocap/test/running/running_1.txt",))
+    with pytest.raises(DataError, match="cmu_mocap/test/running/running_1.txt"):
+        CMUDataModule(tmp_path, actions=["walking", "running"]).prepare_data()
+    dm = CMUDataModule(tmp_path, actions=["walking", "running"], allow_partial=True)
+    dm.setup()
+    assert list(dm.absent_actions) == ["running"] and len(dm.eval_windows) == 8
+
+
+# ---- Lightning integration ------------------------------------------------------------------
+
+
+class _Recorder(L.LightningModule):
+    """Records the first value of every observed window it is trained on."""
+
+    def __init__(self):
+        super().__init__()
+        self.layer = nn.Linear(1, 1)
+        self.seen: dict[int, list[torch.Tensor]] = {}
+
+    def training_step(self, batch, batch_idx):
+        self.seen.setdefault(self.current_epoch, []).append(batch["observed"][:, 0, 0].clone())
+        return self.layer(torch.ones(1, 1)).sum()
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.0)
+
+
+def _fit(data_dir, max_epochs, ckpt_path=None, save_to=None):
+    dm = SyntheticDataModule(data_dir, **SMALL)
+    model = _Recorder()
+    trainer = L.Trainer(
+        max_epochs=max_epochs,
+        accelerator="cpu",
+        devices=1,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        limit_val_batches=0,
+    )
+    trainer.fit(model, datamodule=dm, ckpt_path=ckpt_path)
+    if save_to:
+        trainer.save_checkpoint(save_to)
+    return {e: torch.stack(v) for e, v in model.seen.items()}
+
+
+@pytest.mark.filterwarnings("ignore:You passed in a `val_dataloader`")
+def test_lightning_epochs_differ_reruns_repeat_and_resume(tmp_path):
+    run1 = _fit(tmp_path, 2)
+    run2 = _fit(tmp_path, 2)
+    assert sorted(run1) == [0, 1] and run1[0].shape == (3, 4)
+    assert not torch.equal(run1[0], run1[1])  # Lightning called set_epoch
+    assert all(torch.equal(run1[e], run2[e]) for e in run1)
+    ckpt = tmp_path / "epoch0.ckpt"
+    _fit(tmp_path, 1, save_to=ckpt)
+    resumed = _fit(tmp_path, 2, ckpt_path=ckpt)
+    assert list(resumed) == [1] and torch.equal(resumed[1], run1[1])

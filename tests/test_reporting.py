@@ -1,0 +1,241 @@
+"""Published numbers and result tables: lookups against the papers, layout, absent actions."""
+
+import csv
+import io
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+from src.reporting import published as published_module
+from src.reporting.published import (
+    PublishedRow,
+    ReportingError,
+    find_published,
+    load_published,
+    published_table,
+)
+from src.reporting.tables import ResultTable, results_from_metric
+
+PACKAGED_CSV = Path(__file__).parents[1] / "src" / "reporting" / "published_results.csv"
+
+# Li et al. 2018, Table 2, "Ours" (as printed).
+LI_T2_CONV = {
+    "directions": (0.39, 0.60, 0.80, 0.91, 1.45),
+    "greeting": (0.51, 0.82, 1.21, 1.38, 1.72),
+    "phoning": (0.59, 1.13, 1.51, 1.65, 1.81),
+    "posing": (0.29, 0.60, 1.12, 1.37, 2.65),
+    "purchases": (0.63, 0.91, 1.19, 1.29, 2.52),
+    "sitting": (0.39, 0.61, 1.02, 1.18, 1.67),
+    "sittingdown": (0.41, 0.78, 1.16, 1.31, 2.06),
+    "takingphoto": (0.23, 0.49, 0.88, 1.06, 1.40),
+    "waiting": (0.30, 0.62, 1.09, 1.30, 2.50),
+    "walkingdog": (0.59, 1.00, 1.32, 1.44, 1.92),
+    "walkingtogether": (0.27, 0.52, 0.71, 0.74, 1.28),
+    "average": (0.38, 0.68, 1.01, 1.13, 1.77),
+}
+LI_MS = (80, 160, 320, 400, 1000)
+
+
+# --- published numbers -----------------------------------------------------------------------
+
+
+def test_packaged_csv_is_a_byte_copy_of_the_shared_one():
+    candidates = [Path("/work/shared/docs/published_results.csv")]
+    if os.environ.get("MOTION_ARCHIVES"):
+        archives = Path(os.environ["MOTION_ARCHIVES"])
+        candidates.insert(0, archives.parent / "docs" / "published_results.csv")
+    shared = next((p for p in candidates if p.is_file()), None)
+    if shared is None:
+        pytest.skip("the shared docs/published_results.csv is not on this machine")
+    assert PACKAGED_CSV.read_bytes() == shared.read_bytes()
+
+
+def test_load_published_rows_are_typed():
+    rows = load_published()
+    assert len(rows) == 771  # data lines of the csv
+    assert all(isinstance(r, PublishedRow) for r in rows)
+    first = rows[0]
+    assert first == PublishedRow("li2018", 1, "h36m", "erd", "walking", 80, 0.93)
+
+
+def test_martinez_table1_zero_velocity_walking():
+    table = published_table("martinez2017", 1, "h36m", "zero_velocity")
+    assert table["walking"] == {80: 0.39, 160: 0.68, 320: 0.99, 400: 1.15}
+    assert set(table) == {"walking", "eating", "smoking", "discussion"}  # no "average" row
+
+
+def test_li_table2_conv_s2s():
+    table = published_table("li2018", 2, "h36m", "conv_s2s")
+    assert table == {a: dict(zip(LI_MS, v, strict=True)) for a, v in LI_T2_CONV.items()}
+
+
+def test_average_rows_exist_only_where_printed():
+    with_average = {(r.paper, r.table, r.method) for r in load_published() if r.action == "average"}
+    assert ("li2018", 2, "conv_s2s") in with_average
+    assert ("li2018", 4, "rrnn") in with_average
+    assert not any(t == 1 for _, t, _ in with_average)
+
+
+def test_table_none_merges_tables_of_a_paper():
+    merged = published_table("li2018", None, "h36m", "conv_s2s")
+    assert len(merged) == 16  # 15 actions (Tables 1 and 2) + Table 2's average
+    assert merged["walking"] == {80: 0.33, 160: 0.54, 320: 0.68, 400: 0.73, 1000: 0.92}
+    assert merged["posing"][1000] == 2.65
+
+
+def test_find_published():
+    assert find_published("h36m", "zero_velocity") == [("martinez2017", 1), ("martinez2017", 2)]
+    assert find_published("cmu", "conv_s2s") == [("li2018", 3), ("li2018", 4)]
+    assert find_published("cmu", "zero_velocity") == []
+
+
+def test_unknown_lookup_lists_what_exists():
+    with pytest.raises(ReportingError, match="li2018 T2 h36m conv_s2s"):
+        published_table("li2018", 2, "h36m", "convs2s")
+
+
+def test_conflicting_cells_raise(monkeypatch):
+    rows = (
+        PublishedRow("p", 1, "h36m", "m", "walking", 80, 0.5),
+        PublishedRow("p", 2, "h36m", "m", "walking", 80, 0.6),
+    )
+    monkeypatch.setattr(published_module, "_rows", lambda: rows)
+    with pytest.raises(ReportingError, match="pass table="):
+        published_table("p", None, "h36m", "m")
+    assert published_table("p", 2, "h36m", "m") == {"walking": {80: 0.6}}
+
+
+# --- result tables ---------------------------------------------------------------------------
+
+
+def make_table(**overrides) -> ResultTable:
+    kwargs = dict(
+        title="Zero-velocity, H3.6M",
+        metric="Euler-angle error",
+        unit="rad",
+        actions=["walking", "eating", "discussion", "smoking"],
+        horizons_ms=[80, 160, 320, 400],
+        values={
+            "walking": {80: 0.3941, 160: 0.6781, 320: 0.9861, 400: 1.1521},
+            "eating": {80: 0.2711, 160: 0.4791, 320: 0.7271, 400: 0.8631},
+            "smoking": {80: 0.2581, 160: 0.4831, 320: 0.9701, 400: 0.9491},
+        },
+        absent={"discussion": "S5 discussion_1.txt and discussion_2.txt are missing"},
+        published=published_table("martinez2017", 1, "h36m", "zero_velocity"),
+        published_label="Martinez et al. 2017, Table 1",
+    )
+    kwargs.update(overrides)
+    return ResultTable(**kwargs)
+
+
+def test_average_is_mean_over_evaluated_actions():
+    table = make_table()
+    assert table.evaluated == ["walking", "eating", "smoking"]
+    avg = table.average()
+    assert avg[80] == pytest.approx((0.3941 + 0.2711 + 0.2581) / 3)
+    assert avg[400] == pytest.approx((1.1521 + 0.8631 + 0.9491) / 3)
+
+
+def test_markdown_layout_with_published_and_absent():
+    md = make_table().to_markdown()
+    lines = md.splitlines()
+    assert "| action | 80 ms | 160 ms | 320 ms | 400 ms |" in lines
+    assert "| walking | 0.39 (0.39) | 0.68 (0.68) | 0.99 (0.99) | 1.15 (1.15) |" in lines
+    assert "| discussion [1] | absent | absent | absent | absent |" in lines
+    assert "| **average** | 0.31 (-) | 0.55 (-) | 0.89 (-) | 0.99 (-) |" in lines
+    assert (
+        "- [1] absent (discussion): S5 discussion_1.txt and discussion_2.txt are missing" in lines
+    )
+    assert "mean over the 3 evaluated actions (walking, eating, smoking)" in md
+    assert "Martinez et al. 2017, Table 1" in md
+    assert "nan" not in md.lower()
+
+
+def test_markdown_without_published_and_mpjpe_decimals():
+    table = make_table(
+        metric="MPJPE",
+        unit="mm",
+        published=None,
+        values={
+            a: {ms: 12.345 for ms in (80, 160, 320, 400)} for a in ("walking", "eating", "smoking")
+        },
+    )
+    assert table.decimals == 1
+    assert "| walking | 12.3 | 12.3 | 12.3 | 12.3 |" in table.to_markdown()
+
+
+def test_csv_long_format():
+    rows = list(csv.DictReader(io.StringIO(make_table().to_csv())))
+    assert list(rows[0]) == ["action", "ms", "value", "published", "note"]
+    assert len(rows) == 4 * 4 + 4  # 4 actions x 4 horizons + average
+    walking80 = rows[0]
+    assert (walking80["action"], walking80["ms"]) == ("walking", "80")
+    assert float(walking80["value"]) == 0.3941 and float(walking80["published"]) == 0.39
+    discussion = [r for r in rows if r["action"] == "discussion"]
+    assert {r["value"] for r in discussion} == {"absent"}
+    assert discussion[0]["published"] == "0.31"  # Martinez Table 1 has discussion
+    assert "missing" in discussion[0]["note"]
+    average = [r for r in rows if r["action"] == "average"]
+    assert float(average[0]["value"]) == pytest.approx((0.3941 + 0.2711 + 0.2581) / 3)
+    assert "walking, eating, smoking" in average[0]["note"]
+
+
+def test_to_dict_is_json_ready():
+    d = json.loads(json.dumps(make_table().to_dict()))
+    assert d["values"]["walking"]["80"] == 0.3941
+    assert d["absent"] == {"discussion": "S5 discussion_1.txt and discussion_2.txt are missing"}
+    assert d["average"]["actions"] == ["walking", "eating", "smoking"]
+    assert d["published"]["walking"]["400"] == 1.15
+    assert "discussion" not in d["values"]
+
+
+def test_table_validation():
+    with pytest.raises(ReportingError, match="exactly one"):
+        make_table(absent={})  # discussion neither evaluated nor absent
+    with pytest.raises(ReportingError, match="finite"):
+        make_table(
+            values={**make_table().values, "walking": {80: math.nan, 160: 1, 320: 1, 400: 1}}
+        )
+    with pytest.raises(ReportingError, match="not in actions"):
+        make_table(absent={"discussion": "x", "jumping": "y"})
+
+
+def test_all_absent_has_no_average():
+    table = make_table(values={}, absent={a: "no data" for a in make_table().actions})
+    md = table.to_markdown()
+    assert table.average() is None and "**average**" not in md
+    assert "no action was evaluated" in md
+
+
+# --- from a metric's (A, T) output ----------------------------------------------------------
+
+
+def test_results_from_metric_picks_protocol_horizons():
+    values = torch.arange(3 * 25, dtype=torch.float64).reshape(3, 25)
+    values[1] = math.nan  # action without windows
+    out = results_from_metric(
+        values, ["walking", "discussion", "eating"], 40, {"discussion": "gone"}
+    )
+    assert out == {
+        "walking": {80: 1.0, 160: 3.0, 320: 7.0, 400: 9.0, 560: 13.0, 1000: 24.0},
+        "eating": {80: 51.0, 160: 53.0, 320: 57.0, 400: 59.0, 560: 63.0, 1000: 74.0},
+    }
+    short = results_from_metric(
+        values[:, :10], ["walking", "discussion", "eating"], 40, {"discussion": "gone"}
+    )
+    assert list(short["walking"]) == [80, 160, 320, 400]
+
+
+def test_results_from_metric_refuses_silent_gaps():
+    values = torch.zeros(2, 25, dtype=torch.float64)
+    values[1] = math.nan
+    with pytest.raises(ReportingError, match="absent"):
+        results_from_metric(values, ["walking", "eating"])
+    with pytest.raises(ReportingError, match="has values"):
+        results_from_metric(values, ["walking", "eating"], absent={"walking": "x", "eating": "y"})
+    with pytest.raises(ReportingError, match="len\\(actions\\)"):
+        results_from_metric(values, ["walking"])
