@@ -107,8 +107,11 @@ def train(cfg: DictConfig) -> float:
     wall = time.perf_counter() - start
 
     best = checkpoints.best_model_score
-    score = float(best) if best is not None else float(trainer.callback_metrics.get(
-        "val/euler_avg", torch.tensor(float("nan"))))
+    score = (
+        float(best)
+        if best is not None
+        else float(trainer.callback_metrics.get("val/euler_avg", torch.tensor(float("nan"))))
+    )
     if trainer.is_global_zero and not cfg.trainer.get("fast_dev_run"):
         summary = {
             "best_val_euler_avg": score,

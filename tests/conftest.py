@@ -80,9 +80,7 @@ def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: 
     """Run `python -m <module> args...` as a user would; returns the CompletedProcess."""
     env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "PYTHONUNBUFFERED": "1"}
     cmd = [sys.executable, "-m", module, f"paths.log_dir={log_dir}", *args]
-    return subprocess.run(
-        cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout
-    )
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
 
 
 @pytest.fixture(scope="session")

@@ -19,8 +19,17 @@ PUBLISHED = {
     "running_avg_4": {"walking": [0.64, 0.87, 1.07, 1.20]},
 }
 EVALUABLE = [
-    "walking", "eating", "smoking", "greeting", "phoning", "posing", "purchases", "sitting",
-    "takingphoto", "walkingdog", "walkingtogether",
+    "walking",
+    "eating",
+    "smoking",
+    "greeting",
+    "phoning",
+    "posing",
+    "purchases",
+    "sitting",
+    "takingphoto",
+    "walkingdog",
+    "walkingtogether",
 ]
 ABSENT = ["discussion", "directions", "sittingdown", "waiting"]
 
@@ -33,8 +42,12 @@ def results(archives, real_data_dir, tmp_path_factory):
     for model in PUBLISHED:
         cfg = compose_config(
             "eval",
-            [f"model={model}", "data=h36m", "data.allow_partial=true",
-             f"paths.archive_dir={archives}"],
+            [
+                f"model={model}",
+                "data=h36m",
+                "data.allow_partial=true",
+                f"paths.archive_dir={archives}",
+            ],
             tmp_path_factory.mktemp(model),
             real_data_dir,
         )
@@ -47,8 +60,12 @@ def test_baselines_reproduce_martinez_table1(results, model):
     euler = results[model]["tables"][0]
     assert euler["metric"] == "euler"
     for action, expected in PUBLISHED[model].items():
-        ours = [euler["values"][action][str(ms)] if str(ms) in euler["values"][action]
-                else euler["values"][action][ms] for ms in (80, 160, 320, 400)]
+        ours = [
+            euler["values"][action][str(ms)]
+            if str(ms) in euler["values"][action]
+            else euler["values"][action][ms]
+            for ms in (80, 160, 320, 400)
+        ]
         assert [round(v, 2) for v in ours] == expected, action
 
 

@@ -48,9 +48,16 @@ def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
             seen["batch"] = batch["observed"].shape[0]
 
     trainer = L.Trainer(
-        max_steps=-1, max_epochs=1, limit_train_batches=2, limit_val_batches=0,
-        logger=False, enable_checkpointing=False, callbacks=[Spy()], accelerator="cpu",
-        use_distributed_sampler=False, enable_progress_bar=False,
+        max_steps=-1,
+        max_epochs=1,
+        limit_train_batches=2,
+        limit_val_batches=0,
+        logger=False,
+        enable_checkpointing=False,
+        callbacks=[Spy()],
+        accelerator="cpu",
+        use_distributed_sampler=False,
+        enable_progress_bar=False,
     )
     dm.steps_per_epoch = 2
     trainer.fit(module, datamodule=dm)
@@ -95,7 +102,9 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
     assert "train/eta" in tags and "train/loss_d" in tags
 
     eval_cfg = compose_config(
-        "eval", [f"ckpt_path={out}/checkpoints/last.ckpt"], tmp_path / "eval",
+        "eval",
+        [f"ckpt_path={out}/checkpoints/last.ckpt"],
+        tmp_path / "eval",
         cfg.paths.data_dir,
     )
     result = evaluate(eval_cfg)

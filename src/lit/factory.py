@@ -207,9 +207,7 @@ def module_from_checkpoint(ckpt: dict, cfg: DictConfig, path: str | Path):
     dm = build_datamodule(data_cfg, normalizer=normalizer)
     dm.prepare_data()
     dm.setup("validate")
-    module_cfg = OmegaConf.merge(
-        saved, {"metrics": cfg.metrics, "sampling": saved.get("sampling")}
-    )
+    module_cfg = OmegaConf.merge(saved, {"metrics": cfg.metrics, "sampling": saved.get("sampling")})
     module = build_module(module_cfg, dm, run_info=ckpt["motion"])
     missing, unexpected = module.load_state_dict(state, strict=False)
     missing = [k for k in missing if not k.startswith(("euler.", "mpjpe."))]

@@ -26,7 +26,6 @@ def friendly_errors(fn):
         try:
             return fn(*args, **kwargs)
         except USER_ERRORS as err:
-            log.error("%s: %s", type(err).__name__, err)
             print(f"error: {err}", file=sys.stderr)
             sys.exit(2)
 
@@ -43,9 +42,7 @@ def validate_train_config(cfg: DictConfig) -> None:
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
     _require(cfg.val_every > 0, f"val_every={cfg.val_every} must be a positive integer.")
     _require(cfg.data.batch_size > 0, f"data.batch_size={cfg.data.batch_size} must be > 0.")
-    _require(
-        cfg.data.future_len >= 1, f"data.future_len={cfg.data.future_len} must be >= 1 frame."
-    )
+    _require(cfg.data.future_len >= 1, f"data.future_len={cfg.data.future_len} must be >= 1 frame.")
     lr = cfg.model.get("optimizer", {}).get("lr") if cfg.get("model") else None
     if lr is not None:
         _require(lr > 0, f"model.optimizer.lr={lr} must be a positive learning rate.")
