@@ -3,7 +3,7 @@
     python -m src.eval model=zero_velocity data=h36m
     python -m src.eval model=running_avg_2 data=h36m data.allow_partial=true
     python -m src.eval ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
-    python -m src.eval ckpt_path=... data.eval_protocol=random      (256 windows per action)
+    python -m src.eval ckpt_path=... protocol=random      (256 windows per action)
 
 Prints the per-action tables in the papers' layout (Euler-angle error, then MPJPE) with the
 published value beside ours where a paper gives one, and writes results.{md,csv,json} into the
@@ -31,7 +31,7 @@ from src.lit.factory import (
     register_resolvers,
 )
 from src.lit.validation import friendly_errors
-from src.reporting.published import published_table
+from src.reporting.published import ReportingError, published_table
 from src.reporting.tables import ResultTable, results_from_metric
 
 log = logging.getLogger(__name__)
@@ -50,7 +50,10 @@ def load_for_eval(cfg: DictConfig):
             "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
             "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
         )
-    dm = build_datamodule(cfg.data)
+    data_cfg = cfg.data.copy()
+    if cfg.get("protocol"):
+        data_cfg.eval_protocol = cfg.protocol
+    dm = build_datamodule(data_cfg)
     dm.prepare_data()
     dm.setup("validate")
     module = build_module(cfg, dm, run_info={"commit": git_commit()})
@@ -63,13 +66,22 @@ def load_for_eval(cfg: DictConfig):
     return dm, module, OmegaConf.to_container(cfg.model, resolve=True), cfg.data.name
 
 
+def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
+    """The paper's numbers for this model on this dataset, from the model config's `published`
+    entry ({paper, method} or one such entry per dataset); (None, None) when a paper has none."""
+    if ref and dataset in ref:
+        ref = ref[dataset]
+    if not ref or "paper" not in ref:
+        return None, None
+    try:
+        table = published_table(ref["paper"], ref.get("table"), dataset, ref["method"])
+    except ReportingError:
+        return None, None
+    return table, f"{ref['paper']} {ref['method']}"
+
+
 def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[ResultTable]:
-    published = None
-    label = None
-    ref = model_cfg.get("published")
-    if ref:
-        published = published_table(ref["paper"], ref.get("table"), dm.dataset_name, ref["method"])
-        label = f"{ref['paper']} {ref['method']}"
+    published, label = published_for(model_cfg.get("published"), dm.dataset_name)
     tables = []
     for metric, title, unit in (
         ("euler", "Euler-angle error", "rad"),

@@ -86,7 +86,9 @@ def train(cfg: DictConfig) -> float:
     )
     checkpoints = ModelCheckpoint(
         dirpath=out_dir / "checkpoints",
-        filename="best-{epoch:03d}",
+        # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
+        filename="best-epoch{epoch:03d}",
+        auto_insert_metric_name=False,
         monitor="val/euler_avg",
         mode="min",
         save_last=True,

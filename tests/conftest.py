@@ -9,11 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from hydra import compose, initialize_config_dir
-from hydra.core.global_hydra import GlobalHydra
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig, open_dict
+from omegaconf import DictConfig
 
+from src.lit.compose import compose_config  # noqa: F401  (re-exported for the tests)
 from src.lit.factory import register_resolvers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,24 +39,6 @@ def synthetic_data_dir(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("data")
     write_synthetic_h36m(root / "synthetic")
     return root
-
-
-def compose_config(
-    config_name: str, overrides: list[str], output_dir: Path, data_dir: Path | None = None
-) -> DictConfig:
-    """Compose conf/<config_name>.yaml as `python -m src.<config_name>` would, writing into
-    output_dir. Sets the HydraConfig singleton so ${hydra:...} interpolations resolve."""
-    GlobalHydra.instance().clear()
-    extra = [f"paths.log_dir={output_dir}"]
-    if data_dir is not None:
-        extra.append(f"paths.data_dir={data_dir}")
-    with initialize_config_dir(config_dir=str(CONF), version_base="1.3"):
-        cfg = compose(config_name, overrides=[*extra, *overrides], return_hydra_config=True)
-    with open_dict(cfg):
-        cfg.hydra.runtime.output_dir = str(output_dir)
-        cfg.hydra.job.num = 0
-    HydraConfig().set_config(cfg)
-    return cfg
 
 
 @pytest.fixture

@@ -197,8 +197,8 @@ def module_from_checkpoint(ckpt: dict, cfg: DictConfig, path: str | Path):
     if cfg.get("data") is not None:  # evaluation settings (protocol, batch size) may differ
         for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
             data_cfg[key] = cfg.data[key]
-    if cfg.get("data_overrides"):
-        data_cfg = OmegaConf.merge(data_cfg, cfg.data_overrides)
+    if cfg.get("protocol"):
+        data_cfg.eval_protocol = cfg.protocol
     state = ckpt["state_dict"]
     normalizer = Normalizer.empty(state["normalizer.mean"].numel())
     normalizer.load_state_dict(
