@@ -139,6 +139,17 @@ def markdown_of(result: dict) -> str:
     return "\n\n".join(parts)
 
 
+def replace_block(path: Path, name: str, text: str) -> None:
+    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`."""
+    content = path.read_text()
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    if start not in content or end not in content:
+        raise SystemExit(f"error: {path} has no {start} ... {end} markers")
+    head, rest = content.split(start, 1)
+    _, tail = rest.split(end, 1)
+    path.write_text(f"{head}{start}\n{text}\n{end}{tail}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="*", type=Path, help="training run folders")
@@ -151,11 +162,23 @@ def main(argv: list[str] | None = None) -> int:
         help="datasets for the baselines (default: those of the runs)",
     )
     parser.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
+    parser.add_argument(
+        "--work-dir",
+        type=Path,
+        default=None,
+        help="where the evaluations write (default outputs/report/<time>)",
+    )
+    parser.add_argument(
+        "--readme",
+        type=Path,
+        default=None,
+        help="also put the summary table between the results markers of this file",
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
 
     stamp = dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    work = PROJECT_ROOT / "outputs" / "report" / stamp
+    work = args.work_dir or PROJECT_ROOT / "outputs" / "report" / stamp
     archives = Path(os.environ["MOTION_ARCHIVES"]) if os.environ.get("MOTION_ARCHIVES") else None
 
     entries: list[dict] = []
@@ -251,6 +274,16 @@ def main(argv: list[str] | None = None) -> int:
             ]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines))
+    if args.readme is not None:
+        summary = [
+            f"Average Euler-angle error over the evaluated actions, "
+            f"{PROTOCOLS.get(args.protocols[0], args.protocols[0])}; generated on "
+            f"{dt.date.today()} at commit {git_commit()}."
+            + (f" Budget: {args.budget}" if args.budget else ""),
+            "",
+            summary_table(entries + baseline_entries, "euler", args.protocols[0]),
+        ]
+        replace_block(args.readme, "results", "\n".join(summary))
     (work / "report.json").write_text(json.dumps(entries + baseline_entries, indent=1, default=str))
     print(f"wrote {args.out} (raw results in {work})")
     return 0
