@@ -1,0 +1,284 @@
+"""Pictures of motion: 3D stick figures, frame strips, animations, error-versus-horizon curves.
+
+Poses are joint positions (J, 3) from `src.metrics.kinematics.forward_kinematics` after
+`yz_swap`, so the third coordinate points up (matplotlib's 3D z axis) and the figure stands.
+A motion is (T, J, 3): the observed frames first, then the future ones. Observed frames are
+drawn in grey for every row, future frames in the row's colour (ground truth green, prediction
+red, zero-velocity blue), so one sees where the model takes over.
+
+Figures are built with `matplotlib.figure.Figure` (no pyplot), which renders with Agg and needs
+no display; in a notebook they show with `display(fig)`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from matplotlib.animation import FuncAnimation
+from matplotlib.figure import Figure
+
+from src.metrics.kinematics import Skeleton
+
+# (right side and spine, left side): two shades tell the limbs apart.
+OBSERVED = ("#303030", "#9a9a9a")
+PALETTE = {
+    "green": ("#1a7f37", "#7fd18b"),
+    "red": ("#c62828", "#f28b82"),
+    "blue": ("#1f5fb4", "#8ab4f8"),
+    "orange": ("#d9730d", "#f6b26b"),
+    "purple": ("#6a3d9a", "#cab2d6"),
+}
+
+
+class PoseRow(NamedTuple):
+    """One motion to draw: a label, positions (T, J, 3) (observed then future), a PALETTE key."""
+
+    label: str
+    positions: np.ndarray
+    color: str = "red"
+
+
+def skeleton_bones(skeleton: Skeleton) -> list[tuple[int, int]]:
+    """(parent, child) pairs of the kinematic tree, without zero-length bones (a child with a
+    zero offset sits on its parent, e.g. the H3.6M hand and thumb sites)."""
+    offsets = skeleton.offsets.abs().sum(-1).tolist()
+    return [(p, j) for j, p in enumerate(skeleton.parents) if j > 0 and offsets[j] > 0]
+
+
+# Joints on the body's left, as the reference visualisation colours them (Martinez et al.'s
+# viz.py marks H3.6M joints 1-5 and 24-31 as left; the CMU tree is laid out the same way, with
+# the left leg and arm being the chains at -x in the rest pose). The H3.6M arms cannot be told
+# apart from the rest pose (both point up), hence the explicit lists.
+LEFT_JOINTS = {
+    "h36m": frozenset([*range(1, 6), *range(24, 32)]),
+    "cmu": frozenset([*range(8, 13), *range(30, 38)]),
+}
+
+
+def bone_sides(skeleton: Skeleton, bones: Sequence[tuple[int, int]]) -> np.ndarray:
+    """1 for bones of the body's left side (drawn in the lighter shade), 0 otherwise."""
+    left = LEFT_JOINTS.get(skeleton.name, frozenset())
+    return np.array([int(c in left) for _, c in bones], dtype=int)
+
+
+def rest_pose(skeleton: Skeleton) -> np.ndarray:
+    """Joint positions (J, 3) of the rest pose (every rotation zero), y up as the skeleton."""
+    offsets = skeleton.offsets.numpy()
+    out = np.zeros_like(offsets)
+    for j, p in enumerate(skeleton.parents):
+        out[j] = offsets[j] + (out[p] if p >= 0 else 0.0)
+    return out
+
+
+def _limits(motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) corners (3,) of one box holding every pose, so all panels share a scale."""
+    pts = np.concatenate([m.reshape(-1, 3) for m in motions])
+    lo, hi = pts.min(0), pts.max(0)
+    pad = 0.05 * float((hi - lo).max()) + 1e-9
+    return lo - pad, hi + pad
+
+
+def _setup_axes(ax, box: tuple[np.ndarray, np.ndarray], elev: float, azim: float) -> None:
+    lo, hi = box
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    # Box sides proportional to the data ranges: equal scale on all axes, no empty cube.
+    ax.set_box_aspect(tuple(hi - lo), zoom=1.35)
+    ax.set_proj_type("ortho")
+    ax.view_init(elev=elev, azim=azim)
+    ax.set_axis_off()
+
+
+def _colors(pair: tuple[str, str], sides: np.ndarray) -> list[str]:
+    return [pair[s] for s in sides]
+
+
+def _segments(pose: np.ndarray, bones: Sequence[tuple[int, int]]) -> np.ndarray:
+    """(3 * len(bones), 3) points: each bone's two ends, then a NaN row that breaks the line,
+    so that one Line3D draws many bones (one artist per shade keeps animations fast)."""
+    idx = np.asarray(bones, dtype=int).reshape(-1, 2)
+    pts = np.full((len(idx), 3, 3), np.nan)
+    pts[:, 0], pts[:, 1] = pose[idx[:, 0]], pose[idx[:, 1]]
+    return pts.reshape(-1, 3)
+
+
+def draw_skeleton(
+    ax,
+    pose: np.ndarray,
+    bones: Sequence[tuple[int, int]],
+    colors: tuple[str, str] | str = PALETTE["red"],
+    sides: np.ndarray | None = None,
+    linewidth: float = 2.0,
+) -> list:
+    """Draw one pose (J, 3) on a 3D axes, a line from each bone's parent joint to its child.
+
+    `colors` is a (right side and spine, left side) pair or one colour; `sides` (one 0/1 per
+    bone, see `bone_sides`) says which. Returns the two Line3D objects (right, left); each holds
+    its bones' segments separated by NaN, see `_segments`, and an animation moves them with
+    `set_data_3d`."""
+    pose = np.asarray(pose)
+    if pose.ndim != 2 or pose.shape[1] != 3:
+        raise ValueError(f"pose must be (J, 3) joint positions, got shape {pose.shape}")
+    pair = (colors, colors) if isinstance(colors, str) else colors
+    sides = np.zeros(len(bones), dtype=int) if sides is None else np.asarray(sides)
+    lines = []
+    for side in (0, 1):
+        seg = _segments(pose, [b for b, s in zip(bones, sides, strict=True) if s == side])
+        (line,) = ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color=pair[side], lw=linewidth)
+        lines.append(line)
+    return lines
+
+
+def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3) -> list[int]:
+    """Frame indices of a frame strip: `n_before` observed frames ending at the last observed
+    one, then every `step`-th future frame counted back from the last, so both the first
+    predicted frame (when step divides the future length - 1) and the last one are shown."""
+    if not 0 < n_observed < n_total or step < 1 or n_before < 0:
+        raise ValueError(
+            f"need 0 < n_observed ({n_observed}) < n_total ({n_total}), step >= 1 ({step}) "
+            f"and n_before >= 0 ({n_before})"
+        )
+    before = [n_observed - 1 - step * k for k in range(n_before)]
+    after = list(range(n_total - 1, n_observed - 1, -step))
+    return sorted(f for f in before if f >= 0) + sorted(after)
+
+
+def _check_rows(rows: Sequence[PoseRow], n_observed: int) -> int:
+    if not rows:
+        raise ValueError("nothing to draw: rows is empty")
+    T = rows[0].positions.shape[0]
+    for row in rows:
+        if row.positions.ndim != 3 or row.positions.shape[0] != T or row.positions.shape[2] != 3:
+            raise ValueError(
+                f"row {row.label!r}: positions must be (T={T}, J, 3), got {row.positions.shape}"
+            )
+        if row.color not in PALETTE:
+            raise ValueError(f"row {row.label!r}: color {row.color!r} not in {sorted(PALETTE)}")
+    if not 0 < n_observed < T:
+        raise ValueError(f"n_observed={n_observed} must lie between 1 and T-1={T - 1}")
+    return T
+
+
+def frame_strip(
+    rows: Sequence[PoseRow],
+    skeleton: Skeleton,
+    n_observed: int,
+    frame_ms: float = 40,
+    step: int = 3,
+    n_before: int = 3,
+    title: str | None = None,
+    elev: float = 12.0,
+    azim: float = -70.0,
+    cell: float = 1.15,
+) -> Figure:
+    """A grid of poses in the manner of Li et al. (2018) Figure 3: one row per motion (e.g.
+    prediction, ground truth underneath, zero-velocity), the last observed frames in grey then
+    future frames in colour; column titles give the time from the last observed frame."""
+    T = _check_rows(rows, n_observed)
+    frames = strip_frames(n_observed, T, step, n_before)
+    bones = skeleton_bones(skeleton)
+    sides = bone_sides(skeleton, bones)
+    box = _limits([r.positions for r in rows])
+    fig = Figure(figsize=(cell * len(frames) + 1.2, cell * 1.5 * len(rows) + 0.6), dpi=100)
+    fig.subplots_adjust(left=0.08, right=1.0, bottom=0.0, top=0.86, wspace=-0.25, hspace=0.0)
+    for r, row in enumerate(rows):
+        for c, t in enumerate(frames):
+            ax = fig.add_subplot(len(rows), len(frames), r * len(frames) + c + 1, projection="3d")
+            _setup_axes(ax, box, elev, azim)
+            colors = OBSERVED if t < n_observed else PALETTE[row.color]
+            draw_skeleton(ax, row.positions[t], bones, colors, sides, linewidth=1.4)
+            if r == 0:
+                ms = (t - (n_observed - 1)) * frame_ms
+                ax.set_title(f"{ms:+.0f} ms" if ms else "0 ms", fontsize=8, pad=0)
+        y = 0.86 - (r + 0.5) * 0.86 / len(rows)
+        fig.text(0.01, y, row.label, rotation=90, va="center", ha="left", fontsize=9,
+                 color=PALETTE[row.color][0])  # fmt: skip
+    fig.suptitle(
+        (title + "\n" if title else "") + "grey: observed, colour: future (time from the "
+        "last observed frame)",
+        fontsize=9,
+    )
+    return fig
+
+
+def animate(
+    rows: Sequence[PoseRow],
+    skeleton: Skeleton,
+    n_observed: int,
+    frame_ms: float = 40,
+    title: str | None = None,
+    elev: float = 12.0,
+    azim: float = -70.0,
+    size: float = 3.0,
+    dpi: int = 80,
+) -> FuncAnimation:
+    """The rows side by side as 3D stick figures, one animation frame per motion frame.
+
+    Observed frames are grey; from the first future frame on each row takes its own colour.
+    Save with `anim.save(path, writer=PillowWriter(fps=1000 / frame_ms))` or show in a notebook
+    with `IPython.display.HTML(anim.to_jshtml())`.
+    """
+    T = _check_rows(rows, n_observed)
+    bones = skeleton_bones(skeleton)
+    sides = bone_sides(skeleton, bones)
+    box = _limits([r.positions for r in rows])
+    fig = Figure(figsize=(size * len(rows), size + 0.7), dpi=dpi)
+    fig.subplots_adjust(left=0, right=1, bottom=0, top=0.8, wspace=0)
+    all_lines = []
+    for i, row in enumerate(rows):
+        ax = fig.add_subplot(1, len(rows), i + 1, projection="3d")
+        _setup_axes(ax, box, elev, azim)
+        ax.set_title(row.label, color=PALETTE[row.color][0], fontsize=10)
+        all_lines.append(draw_skeleton(ax, row.positions[0], bones, OBSERVED, sides))
+    clock = fig.suptitle("", fontsize=9)
+
+    by_side = [[b for b, s in zip(bones, sides, strict=True) if s == side] for side in (0, 1)]
+
+    def update(t: int) -> list:
+        for row, lines in zip(rows, all_lines, strict=True):
+            pair = OBSERVED if t < n_observed else PALETTE[row.color]
+            for side, line in enumerate(lines):
+                seg = _segments(row.positions[t], by_side[side])
+                line.set_data_3d(seg[:, 0], seg[:, 1], seg[:, 2])
+                line.set_color(pair[side])
+        ms = (t - (n_observed - 1)) * frame_ms
+        phase = "observed" if t < n_observed else "predicted"
+        clock.set_text((title + "\n" if title else "") + f"{ms:+.0f} ms ({phase})")
+        return [line for lines in all_lines for line in lines]
+
+    return FuncAnimation(fig, update, frames=range(T), interval=frame_ms, blit=False)
+
+
+def error_vs_horizon(
+    results: Sequence[tuple[str, dict[int, float]]],
+    title: str | None = None,
+    ylabel: str = "Euler-angle error (rad)",
+    dashed: Sequence[str] = (),
+) -> Figure:
+    """Error against prediction horizon, one line per (label, {ms: value}) in `results`, as in
+    Li et al. (2018) Figure 4. Labels listed in `dashed` (e.g. published curves) are dashed."""
+    if not results:
+        raise ValueError("error_vs_horizon: no curves given")
+    fig = Figure(figsize=(6.0, 4.0), dpi=100)
+    ax = fig.add_subplot(1, 1, 1)
+    ticks: set[int] = set()
+    for label, curve in results:
+        if not curve:
+            raise ValueError(f"curve {label!r} has no values")
+        ms = sorted(int(k) for k in curve)
+        ticks.update(ms)
+        values = [curve[k] if k in curve else curve[str(k)] for k in ms]
+        ax.plot(ms, values, marker="o", ms=4, label=label, ls="--" if label in dashed else "-")
+    ax.set_xticks(sorted(ticks))
+    ax.set_xlabel("prediction horizon (ms)")
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig

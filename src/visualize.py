@@ -1,0 +1,178 @@
+"""Draw one evaluation window: ground truth, the model's prediction and zero-velocity.
+
+    python -m src.visualize ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
+    python -m src.visualize model=zero_velocity data=h36m action=walking
+    python -m src.visualize model=zero_velocity data=cmu action=basketball window=3 format=mp4
+
+The window is the `window`-th evaluation window of `action` (protocol §3: on H3.6M the SRNN
+windows of S5, on CMU the test file windows). The model predicts the future fully
+autoregressively from the 50 observed frames; prediction and ground truth are unnormalised
+(protocol §2.2) and turned into joint positions by forward kinematics with the global
+translation and rotation zeroed (as the metric does, protocol §4.1), then y and z swapped so
+the person stands upright. Writes into the run's own folder (outputs/visualize/runs/...):
+
+- `<action>_w<window>.gif` (or .mp4 when ffmpeg exists): the motions side by side as 3D
+  stick figures, observed frames grey, future frames coloured;
+- `<action>_w<window>_strip.png`: a frame strip in the manner of Li et al. (2018) Figure 3.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from pathlib import Path
+
+import hydra
+import matplotlib
+import numpy as np
+import torch
+from omegaconf import DictConfig
+
+from src.data.base import MotionDataModule
+from src.eval import load_for_eval
+from src.lit.factory import ConfigError, register_resolvers
+from src.lit.predictor import MotionPredictor
+from src.lit.validation import friendly_errors
+from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
+from src.models.baselines import ZeroVelocity
+from src.reporting.plots import PoseRow, animate, frame_strip
+
+log = logging.getLogger(__name__)
+register_resolvers()
+FORMATS = ("gif", "mp4")
+
+
+def select_window(dm: MotionDataModule, action: str, window: int) -> int:
+    """Index into `dm.eval_windows` of the `window`-th evaluation window of `action`."""
+    if action not in dm.actions:
+        raise ConfigError(f"action={action!r} is not in this data's actions: {dm.actions}")
+    if action in dm.absent_actions:
+        raise ConfigError(
+            f"action={action!r} cannot be shown: {dm.absent_actions[action]}. Pick another "
+            f"action, e.g. action={dm.eval_windows[0].action}"
+        )
+    indices = [i for i, w in enumerate(dm.eval_windows) if w.action == action]
+    if not 0 <= window < len(indices):
+        raise ConfigError(
+            f"window={window} is out of range: {action} has {len(indices)} evaluation windows "
+            f"(0..{len(indices) - 1}) under the {dm.eval_protocol} protocol"
+        )
+    return indices[window]
+
+
+@torch.no_grad()
+def predict_window(dm: MotionDataModule, module: MotionPredictor, index: int) -> dict:
+    """Unnormalised full frames (F columns) of evaluation window `index`: `observed` (50, F),
+    `future` (T, F) ground truth and `prediction` (T, F), decoded fully autoregressively."""
+    item = dm.val_dataloader().dataset[index]
+    was_training = module.training
+    module.eval()  # dropout off, as in evaluation
+    try:
+        observed = item["observed"][None].to(module.device)
+        T = item["future"].shape[0]
+        pred = module(observed, T, action=item["action"][None].to(module.device))[0]
+    finally:
+        module.train(was_training)
+    norm = module.normalizer
+    return {
+        "observed": norm.unnormalize(observed[0]).cpu(),
+        "future": norm.unnormalize(item["future"].to(module.device)).cpu(),
+        "prediction": norm.unnormalize(pred).cpu(),
+    }
+
+
+def positions(frames: torch.Tensor, skeleton: Skeleton) -> np.ndarray:
+    """Joint positions (T, J, 3) of unnormalised frames (T, F), body frame, z up."""
+    xyz = forward_kinematics(frames.double(), skeleton, zero_global=True)
+    return yz_swap(xyz).numpy()
+
+
+def window_rows(
+    dm: MotionDataModule,
+    module: MotionPredictor,
+    action: str,
+    window: int = 0,
+    baseline: bool = True,
+    observed_shown: int = 25,
+    name: str | None = None,
+) -> tuple[list[PoseRow], int, str]:
+    """(rows, n_observed, description) for `frame_strip` / `animate`: prediction, ground
+    truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
+    row is the last `observed_shown` observed frames followed by the future."""
+    index = select_window(dm, action, window)
+    frames = predict_window(dm, module, index)
+    obs = frames["observed"][-observed_shown:]
+    T = frames["future"].shape[0]
+    skeleton = Skeleton.load(module.dataset)
+    name = name or module.run_info.get("config", {}).get("model", {}).get("name")
+    name = name or type(module.net).__name__
+    rows = [
+        PoseRow(
+            f"prediction ({name})", positions(torch.cat([obs, frames["prediction"]]), skeleton)
+        ),
+        PoseRow("ground truth", positions(torch.cat([obs, frames["future"]]), skeleton), "green"),
+    ]
+    if baseline and not isinstance(module.net, ZeroVelocity):
+        # Zero-velocity repeats the last observed frame (protocol §7.1).
+        still = obs[-1:].expand(T, -1)
+        rows.append(PoseRow("zero-velocity", positions(torch.cat([obs, still]), skeleton), "blue"))
+    w = dm.eval_windows[index]
+    what = f"{name} on {dm.dataset_name}: {action}, window {window} ({w.sequence}, start {w.start})"
+    return rows, len(obs), what
+
+
+def _writer(fmt: str, fps: float):
+    from matplotlib.animation import FFMpegWriter, PillowWriter
+
+    if fmt == "mp4":
+        if shutil.which("ffmpeg"):
+            return FFMpegWriter(fps=fps), "mp4"
+        print("format=mp4 needs ffmpeg, which is not installed; writing a GIF instead")
+        log.warning("ffmpeg not found; writing a GIF instead of an MP4")
+    return PillowWriter(fps=fps), "gif"
+
+
+def visualize(cfg: DictConfig) -> dict[str, Path]:
+    """Write the animation and the frame strip of one window; return their paths."""
+    matplotlib.use("Agg")
+    if cfg.format not in FORMATS:
+        raise ConfigError(f"format={cfg.format!r}: choose one of {', '.join(FORMATS)}")
+    if cfg.observed_shown < 1:
+        raise ConfigError(f"observed_shown={cfg.observed_shown} must be >= 1 frame")
+    dm, module, model_cfg, _ = load_for_eval(cfg)
+    observed_shown = min(int(cfg.observed_shown), dm.observed_len)
+    rows, n_obs, what = window_rows(
+        dm,
+        module,
+        cfg.action,
+        int(cfg.window),
+        bool(cfg.baseline),
+        observed_shown,
+        name=model_cfg["name"],
+    )
+    skeleton = Skeleton.load(module.dataset)
+    out_dir = Path(cfg.paths.output_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = f"{cfg.action}_w{cfg.window}"
+
+    strip = frame_strip(rows, skeleton, n_obs, dm.frame_ms, step=cfg.strip_step, title=what)
+    strip_path = out_dir / f"{stem}_strip.png"
+    strip.savefig(strip_path)
+
+    anim = animate(rows, skeleton, n_obs, dm.frame_ms, title=what)
+    writer, ext = _writer(cfg.format, 1000 / dm.frame_ms)
+    anim_path = out_dir / f"{stem}.{ext}"
+    anim.save(anim_path, writer=writer)
+
+    print(f"{what}\nwritten: {anim_path}\n         {strip_path}")
+    return {"animation": anim_path, "strip": strip_path}
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="visualize")
+@friendly_errors
+def main(cfg: DictConfig) -> None:
+    visualize(cfg)
+
+
+if __name__ == "__main__":
+    main()
