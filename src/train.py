@@ -19,8 +19,11 @@ from pathlib import Path
 import hydra
 import lightning as L
 import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
 from src.lit.factory import (
@@ -33,6 +36,8 @@ from src.lit.factory import (
     read_checkpoint,
     register_resolvers,
 )
+from src.lit.media_callback import FrameStripLogger
+from src.lit.predictor import NonFiniteLossError
 from src.lit.validation import friendly_errors, validate_train_config
 from src.reporting.tensorboard import add_error_curve_layout
 
@@ -53,10 +58,33 @@ def _check_writable(folder: Path) -> None:
         ) from err
 
 
+def _check_unused(folder: Path) -> None:
+    """Refuse a folder that already holds a run: two runs started within the same second (the
+    folder name's resolution) or sweep jobs differing only in an excluded key (seed) would
+    otherwise write over each other's checkpoints."""
+    if (folder / "config.yaml").exists() or any((folder / "checkpoints").glob("*.ckpt")):
+        raise ConfigError(
+            f"the run folder {folder} already holds another run; nothing was overwritten. "
+            "Start the run again (it gets a new timestamped folder) or set hydra.run.dir."
+        )
+
+
+def _previous_best(ckpt: dict | None) -> tuple[float, str]:
+    """(best score, its checkpoint) recorded by the run a resumed run continues. Lightning does
+    not restore them when the checkpoint folder changes, which it always does on resume."""
+    for name, state in (ckpt or {}).get("callbacks", {}).items():
+        score = state.get("best_model_score") if name.startswith("ModelCheckpoint") else None
+        if score is not None and math.isfinite(float(score)):
+            return float(score), str(state.get("best_model_path", ""))
+    return math.inf, ""
+
+
 def train(cfg: DictConfig) -> float:
     validate_train_config(cfg)
     out_dir = Path(cfg.paths.output_dir)
     _check_writable(out_dir)
+    if rank_zero_only.rank == 0:  # DDP's other ranks start later, in the same folder
+        _check_unused(out_dir)
     L.seed_everything(cfg.seed, workers=True)
     torch.use_deterministic_algorithms(True, warn_only=True)
 
@@ -68,7 +96,7 @@ def train(cfg: DictConfig) -> float:
     if cfg.ckpt_path:
         ckpt = read_checkpoint(cfg.ckpt_path)
         check_compatible(ckpt, cfg, cfg.ckpt_path)
-        check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path)
+        check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
 
     run_info = {
         "config": {
@@ -98,7 +126,7 @@ def train(cfg: DictConfig) -> float:
         cfg.trainer,
         max_epochs=math.ceil(cfg.iterations / cfg.val_every),
         logger=logger,
-        callbacks=[checkpoints, LearningRateMonitor(logging_interval="step")],
+        callbacks=[checkpoints, LearningRateMonitor("step"), *FrameStripLogger.from_config(cfg)],
     )
     if trainer.logger is not None and trainer.is_global_zero:
         add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
@@ -108,17 +136,23 @@ def train(cfg: DictConfig) -> float:
     trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
     wall = time.perf_counter() - start
 
+    final = {
+        key: float(trainer.callback_metrics.get(f"val/{key}", torch.tensor(float("nan"))))
+        for key in ("euler_avg", "mpjpe_avg")
+    }
     best = checkpoints.best_model_score
-    score = (
-        float(best)
-        if best is not None
-        else float(trainer.callback_metrics.get("val/euler_avg", torch.tensor(float("nan"))))
-    )
+    score = float(best) if best is not None else final["euler_avg"]
+    best_path = checkpoints.best_model_path
+    prev_score, prev_path = _previous_best(ckpt)
+    if math.isfinite(prev_score) and not prev_score >= score:  # best epoch before the resume
+        score, best_path = prev_score, prev_path
     if trainer.is_global_zero and not cfg.trainer.get("fast_dev_run"):
         summary = {
             "best_val_euler_avg": score,
-            "best_checkpoint": checkpoints.best_model_path,
+            "best_checkpoint": best_path,
             "last_checkpoint": checkpoints.last_model_path,
+            "final_val_euler_avg": final["euler_avg"],
+            "final_val_mpjpe_avg": final["mpjpe_avg"],
             "iterations": int(module.iteration),
             "wall_time_s": round(wall, 1),
             "commit": run_info["commit"],
@@ -139,7 +173,17 @@ def _device_name(trainer: L.Trainer) -> str:
 @hydra.main(version_base="1.3", config_path="../conf", config_name="train")
 @friendly_errors
 def main(cfg: DictConfig) -> float:
-    return train(cfg)
+    try:
+        score = train(cfg)
+    except NonFiniteLossError as err:
+        if HydraConfig.get().mode != RunMode.MULTIRUN:
+            raise
+        # In a sweep a diverged run is a result, not a crash: it scores +inf (the worst) and
+        # the other runs, or the Optuna study, go on (docs/cluster.md).
+        log.error("run diverged, scored +inf: %s", err)
+        return math.inf
+    # The Optuna sweeper cannot record NaN (it would stop the study): no result is the worst.
+    return math.inf if math.isnan(score) else score
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import warnings
 from pathlib import Path
 
@@ -19,6 +20,10 @@ import numpy as np
 from src.data.errors import DataError, DataFormatError, DataNotFoundError
 
 _F32_MAX = float(np.finfo(np.float32).max)
+# Plain ASCII decimal notation, what numpy's parser takes: Python's float() alone would also
+# accept "1_0" or non-ASCII digits, which only a damaged file contains.
+_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
+_NON_FINITE = re.compile(r"[+-]?(nan|inf|infinity)", re.IGNORECASE)
 _FIX = (
     "fix: replace the file with the copy from the original archive, "
     "or delete it and run with data.allow_partial=true"
@@ -77,8 +82,11 @@ def _scan(path: Path, n_columns: int) -> np.ndarray:
                 )
             row = []
             for col, token in enumerate(tokens):
+                plain = token.strip()
                 try:
-                    value = float(token)
+                    if not (_NUMBER.fullmatch(plain) or _NON_FINITE.fullmatch(plain)):
+                        raise ValueError(plain)
+                    value = float(plain)
                 except ValueError:
                     raise DataFormatError(
                         f"{where}: column {col + 1} holds {token.strip()[:40]!r}, which is not "

@@ -112,6 +112,8 @@ class SyntheticDataModule(H36MDataModule):
 
     def _locate(self):
         train, test = self.expected_files()
+        if self._eval_only:  # evaluating a checkpoint: the training files are not needed
+            train = []
         if any(not (self.data_dir / e.relpath).is_file() for e in train + test):
             subjects = [*self.train_subjects, self.test_subject]
             write_synthetic_h36m(

@@ -10,8 +10,10 @@ from typing import Any
 
 import hydra
 import torch
+from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
+from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.predictor import MotionPredictor
 
@@ -51,10 +53,26 @@ def git_commit() -> str:
         return "unknown"
 
 
+def _instantiate(node, **kwargs):
+    """hydra.utils.instantiate, but a bad value reaches the user as the project's own one-line
+    error: Hydra wraps whatever the constructor raised in an InstantiationException, which the
+    CLI would print as a traceback."""
+    try:
+        return hydra.utils.instantiate(node, **kwargs)
+    except InstantiationException as err:
+        cause = err.__cause__
+        if isinstance(cause, (DataError, ConfigError)):
+            raise cause from None
+        if isinstance(cause, ValueError):
+            target = node.get("_target_", "?") if hasattr(node, "get") else "?"
+            raise ConfigError(f"{target}: {cause}") from None
+        raise
+
+
 # ---------------------------------------------------------------------------- data
 def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None):
     kwargs = {k: v for k, v in data_cfg.items() if k != "name"}
-    dm = hydra.utils.instantiate(kwargs, _convert_="all")
+    dm = _instantiate(kwargs, _convert_="all")
     if normalizer is not None:
         dm.set_normalizer(normalizer)
     return dm
@@ -72,7 +90,7 @@ def _instantiate_with_data(node: DictConfig, dm, **extra):
     if node.get("padding") == "auto":
         kwargs["padding"] = dm.conv_padding
     kwargs.update(extra)
-    return hydra.utils.instantiate(node, **kwargs, _convert_="all")
+    return _instantiate(node, **kwargs, _convert_="all")
 
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
@@ -98,7 +116,7 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
         lr_decay_gamma=cfg.model.get("lr_decay_gamma", 1.0),
         lambda_2=cfg.model.get("lambda_2", 0.0),
         grad_clip_norm=cfg.model.get("grad_clip_norm"),
-        eta_schedule=hydra.utils.instantiate(cfg.sampling) if cfg.get("sampling") else None,
+        eta_schedule=_instantiate(cfg.sampling) if cfg.get("sampling") else None,
         discriminator=discriminator,
         d_optimizer=d_optimizer,
         lambda_adv=adv.get("lambda_adv", 0.0) if discriminator is not None else 0.0,
@@ -118,9 +136,16 @@ def read_checkpoint(path: str | Path) -> dict:
             "outputs/train/runs/<run>/<time>/checkpoints/ (best-*.ckpt, last.ckpt)."
         )
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+        # weights_only: a file from elsewhere cannot run code on load; this project's
+        # checkpoints hold only tensors and plain containers.
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file
-        raise CheckpointError(f"cannot read checkpoint {path}: {err}") from err
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise CheckpointError(
+            f"cannot read checkpoint {path}: {first[:300]}. The file is damaged (e.g. "
+            "truncated by a killed copy) or was not written by torch.save; use another "
+            "checkpoint of the run (last.ckpt, best-*.ckpt)."
+        ) from err
     if not isinstance(ckpt, dict) or "motion" not in ckpt or "state_dict" not in ckpt:
         raise CheckpointError(
             f"{path} is not a checkpoint written by this project's training (no 'motion' "
@@ -163,8 +188,17 @@ def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
         )
 
 
-def check_normalizer(ckpt: dict, normalizer: Normalizer, path: str | Path) -> None:
-    """Resuming training on data whose statistics differ would silently change the model."""
+def check_normalizer(
+    ckpt: dict, normalizer: Normalizer, path: str | Path, actions: list[str] | None = None
+) -> None:
+    """Resuming training on data whose statistics (or action labels) differ would silently
+    change the model."""
+    saved_actions = ckpt["motion"].get("actions")
+    if actions is not None and saved_actions is not None and list(actions) != saved_actions:
+        raise CheckpointError(
+            f"actions: checkpoint {path} was trained on actions {saved_actions}, the data "
+            f"config gives {list(actions)}. Set data.actions as in the run that wrote it."
+        )
     state = ckpt["state_dict"]
     used = state.get("normalizer.used")
     if used is None:
@@ -175,8 +209,10 @@ def check_normalizer(ckpt: dict, normalizer: Normalizer, path: str | Path) -> No
             f"columns, the data gives {normalizer.pose_dim} of {normalizer.num_features}. "
             "It was trained on another dataset or action set."
         )
-    if not torch.equal(used, normalizer.used.cpu()) or not torch.allclose(
-        state["normalizer.mean"], normalizer.mean.cpu(), atol=1e-5
+    if not (
+        torch.equal(used, normalizer.used.cpu())
+        and torch.allclose(state["normalizer.mean"], normalizer.mean.cpu(), atol=1e-5)
+        and torch.allclose(state["normalizer.std"], normalizer.std.cpu(), atol=1e-5)
     ):
         raise CheckpointError(
             f"normalisation statistics: checkpoint {path} was trained with different "

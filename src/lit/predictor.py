@@ -274,10 +274,32 @@ class MotionPredictor(L.LightningModule):
             idx = list(self.horizons.values())
             logs[f"{stage}/euler_avg"] = euler[present][:, idx].mean().item()
             logs[f"{stage}/mpjpe_avg"] = mpjpe[present][:, idx].mean().item()
-        self.log_dict(logs, sync_dist=False)
+        # Under DDP every rank already holds the same global values (the metrics all-reduce
+        # their sums in compute()); sync_dist averages identical numbers, a no-op that keeps
+        # Lightning from warning once per key.
+        self.log_dict(logs, sync_dist=True)
 
     # ---------------------------------------------------------------- checkpoints
+    def _check_finite_weights(self) -> None:
+        """A step can turn the weights NaN after a finite loss; the loss check would fire only
+        at the next iteration, after validation and the epoch's checkpoint. Checked once per
+        epoch, before validation and before every checkpoint is written, so the previous good
+        last.ckpt is kept."""
+        nets = [self.net] if self.discriminator is None else [self.net, self.discriminator]
+        bad = [n for net in nets for n, p in net.named_parameters() if not p.isfinite().all()]
+        if bad:
+            raise NonFiniteLossError(
+                f"non-finite weights after training iteration {int(self.iteration)} "
+                f"({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''}); no checkpoint was "
+                "written from them, the previous one in the run's checkpoints/ folder is kept. "
+                f"Last finite losses (oldest first): {list(self._recent_losses) or 'none yet'}."
+            )
+
+    def on_validation_start(self) -> None:
+        self._check_finite_weights()
+
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        self._check_finite_weights()
         checkpoint["motion"] = {
             **self.run_info,
             "dataset": self.dataset,

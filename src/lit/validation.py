@@ -9,6 +9,7 @@ import sys
 
 from omegaconf import DictConfig
 
+from src.data.base import EVAL_PROTOCOLS
 from src.data.errors import DataError
 from src.lit.factory import CheckpointError, ConfigError
 from src.lit.predictor import NonFiniteLossError
@@ -64,6 +65,30 @@ def validate_train_config(cfg: DictConfig) -> None:
             1 <= C <= cfg.data.observed_len,
             f"model.net.C={C} must be between 1 and data.observed_len={cfg.data.observed_len} "
             "(the short-term window lies inside the observed frames).",
+        )
+    model = cfg.get("model") or {}
+    if model.get("lambda_2") is not None:
+        _require(model.lambda_2 >= 0, f"model.lambda_2={model.lambda_2} must be >= 0.")
+    if adv is not None and adv.get("enabled") and adv.get("lambda_2") is not None:
+        _require(adv.lambda_2 >= 0, f"adversarial.lambda_2={adv.lambda_2} must be >= 0.")
+    every, gamma = model.get("lr_decay_every"), model.get("lr_decay_gamma")
+    if every is not None:
+        _require(every >= 1, f"model.lr_decay_every={every} must be >= 1 iteration.")
+    if gamma is not None:
+        _require(0 < gamma <= 1, f"model.lr_decay_gamma={gamma} must be in (0, 1].")
+    clip = model.get("grad_clip_norm")
+    if clip is not None:
+        _require(clip > 0, f"model.grad_clip_norm={clip} must be > 0, or null for no clipping.")
+    sampling = cfg.get("sampling") or {}
+    if sampling.get("steps") is not None:
+        _require(sampling.steps >= 1, f"sampling.steps={sampling.steps} must be >= 1.")
+    if sampling.get("k") is not None:
+        _require(sampling.k >= 1, f"sampling.k={sampling.k} must be >= 1.")
+    protocol = cfg.data.get("eval_protocol")
+    if protocol is not None:
+        _require(
+            protocol in EVAL_PROTOCOLS,
+            f"data.eval_protocol={protocol!r} is unknown; use one of: " + ", ".join(EVAL_PROTOCOLS),
         )
     rule = cfg.metrics.dim_rule
     _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
