@@ -30,7 +30,7 @@ from src.lit.factory import (
     read_checkpoint,
     register_resolvers,
 )
-from src.lit.validation import friendly_errors
+from src.lit.validation import friendly_errors, validate_eval_config
 from src.reporting.published import ReportingError, published_table
 from src.reporting.tables import ResultTable, results_from_metric
 
@@ -108,6 +108,7 @@ def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[ResultTable]
 
 
 def evaluate(cfg: DictConfig) -> dict:
+    validate_eval_config(cfg)
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
     dm, module, model_cfg, dataset = load_for_eval(cfg)

@@ -109,3 +109,16 @@ def test_runs_never_share_a_folder(tmp_path):
     run_dir = cfg.hydra.run.dir
     assert "${now:" in OmegaConf.to_container(cfg.hydra, resolve=False)["run"]["dir"]
     assert Path(str(run_dir)).name  # timestamped leaf
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [("metrics.dim_rule=futur", "use future or window"), ("protocol=srn", "use one of: srnn")],
+)
+def test_eval_settings_are_validated(override, message, tmp_path):
+    from src.lit.factory import ConfigError
+    from src.lit.validation import validate_eval_config
+
+    cfg = compose_config("eval", ["model=zero_velocity", "data=h36m", override], tmp_path)
+    with pytest.raises(ConfigError, match=message):
+        validate_eval_config(cfg)

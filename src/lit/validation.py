@@ -92,3 +92,15 @@ def validate_train_config(cfg: DictConfig) -> None:
         )
     rule = cfg.metrics.dim_rule
     _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
+
+
+def validate_eval_config(cfg: DictConfig) -> None:
+    """The evaluation settings that do not come from a checkpoint."""
+    rule = cfg.metrics.dim_rule
+    _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
+    protocol = cfg.get("protocol")
+    if protocol is not None:
+        _require(
+            protocol in EVAL_PROTOCOLS,
+            f"protocol={protocol!r} is unknown; use one of: " + ", ".join(EVAL_PROTOCOLS),
+        )
