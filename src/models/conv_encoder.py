@@ -138,3 +138,106 @@ class ConvEncoder(nn.Module):
             )
         h = self.convs(x.unsqueeze(1))
         return self.fc(torch.flatten(h, 1))
+
+
+class IncrementalCEM:
+    """Feature-map rows of one ConvEncoder, computed once and reused by later windows.
+
+    Why: the short-term window of eq. (5) slides by one frame per decoding step, and a
+    stride-2 convolution row depends only on the rows under its kernel. A row is identified
+    by *what it was computed from*: at layer 0 a frame id, at layer l the tuple of the
+    layer-(l-1) row ids under its kernel (None where the kernel sees TF zero padding). Two
+    rows with the same identity hold the same numbers, so a window only computes the rows
+    whose identity is new — the ones touched by the new frame, and the ones near the window
+    ends that see padding. This is exact for any kernel, stride and padding (SAME / VALID),
+    as long as dropout is off or its masks may be shared (the caller decides that).
+
+    Frame ids are chosen by the caller: ids >= 0 are "stable" frames (observed data that
+    keeps its id across calls, e.g. a stream position), ids < 0 are transient (predictions).
+    `prune` drops what a later call can no longer reuse, so a long-lived stream stays small.
+    """
+
+    def __init__(self, encoder: ConvEncoder):
+        self.encoder = encoder
+        mods = list(encoder.convs)
+        # (pad, conv, act, drop) per layer, as built by ConvEncoder
+        self.layers = [mods[i : i + 4] for i in range(0, len(mods), 4)]
+        n = len(self.layers) + 1
+        self.keys: list[dict[tuple, int]] = [{} for _ in range(n)]  # identity -> row id
+        self.rows: list[dict[int, Tensor]] = [{} for _ in range(n)]  # row id -> (B, ch, W)
+        self.oldest: list[dict[int, int | None]] = [{} for _ in range(n)]  # oldest stable frame
+        self._next = [0] * n
+
+    def add_frame(self, frame_id: int, frame: Tensor) -> None:
+        """Register frame (B, D) under the caller's id (layer-0 row)."""
+        self.rows[0][frame_id] = frame.unsqueeze(1)  # one input channel
+        self.oldest[0][frame_id] = frame_id if frame_id >= 0 else None
+
+    def encode(self, frame_ids: list[int]) -> Tensor:
+        """The encoder's output (B, d_out) on the window made of these registered frames."""
+        enc = self.encoder
+        if len(frame_ids) != enc.in_len:
+            raise ValueError(f"window has {len(frame_ids)} frames, the encoder {enc.in_len}")
+        ids: list[int | None] = list(frame_ids)
+        for level, (pad, conv, act, drop) in enumerate(self.layers, start=1):
+            left, right, top, _ = pad.padding
+            (kh, _), (s, _) = conv.kernel_size, conv.stride
+            n_in, n_out = len(ids), enc.shapes[level - 1][1]
+            keymap, rows, below = self.keys[level], self.rows[level], self.rows[level - 1]
+            out_ids = []
+            for j in range(n_out):
+                key = tuple(
+                    ids[r] if 0 <= r < n_in else None for r in range(s * j - top, s * j - top + kh)
+                )
+                rid = keymap.get(key)
+                if rid is None:
+                    rid = keymap[key] = self._next[level]
+                    self._next[level] += 1
+                    olds = [self.oldest[level - 1][i] for i in key if i is not None]
+                    stable = all(o is not None for o in olds)
+                    self.oldest[level][rid] = min(olds) if stable and olds else None
+                out_ids.append(rid)
+            # Contiguous runs of rows to compute, each with one conv call.
+            missing = [j for j, rid in enumerate(out_ids) if rid not in rows]
+            runs: list[list[int]] = []
+            for j in missing:
+                if runs and runs[-1][-1] == j - 1:
+                    runs[-1].append(j)
+                else:
+                    runs.append([j])
+            for run in runs:
+                j0, j1 = run[0], run[-1]
+                zero = None
+                parts = []
+                for r in range(s * j0 - top, s * j1 - top + kh):
+                    if 0 <= r < n_in:
+                        parts.append(below[ids[r]])
+                    else:  # TF zero padding of this layer's input
+                        if zero is None:
+                            ref = below[next(i for i in ids if i is not None)]
+                            zero = ref.new_zeros(ref.shape)
+                        parts.append(zero)
+                x = torch.stack(parts, dim=2)
+                if left or right:
+                    x = nn.functional.pad(x, (left, right))
+                y = act(conv(x))
+                if drop.training and drop.p > 0:
+                    y = drop(y)
+                for j, row in zip(run, y.unbind(2), strict=True):
+                    rows[out_ids[j]] = row
+            ids = out_ids
+        h = torch.stack([self.rows[-1][i] for i in ids], dim=2)
+        return enc.fc(torch.flatten(h, 1))
+
+    def prune(self, oldest_frame: int) -> None:
+        """Keep only rows built from stable frames >= oldest_frame (the rest cannot recur)."""
+        for level in range(len(self.rows)):
+            old = self.oldest[level]
+            dead = {i for i, o in old.items() if o is None or o < oldest_frame}
+            if not dead:
+                continue
+            for i in dead:
+                del old[i]
+                self.rows[level].pop(i, None)
+            if level:
+                self.keys[level] = {k: v for k, v in self.keys[level].items() if v not in dead}

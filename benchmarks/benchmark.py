@@ -1,0 +1,401 @@
+"""Performance suite: training speed, inference latency/throughput, FLOP/s, data, eval cost.
+
+    python benchmarks/benchmark.py [--device cpu|cuda] [--smoke] [--json out.json]
+                                   [--markdown docs/performance.md]
+
+Synthetic tensors of the real H3.6M shapes (D = 54 used of F = 99 columns, 50 -> 25 frames).
+Training drives the real `MotionPredictor.training_step` through a minimal manual loop (the
+Lightning hooks it calls are bound to plain PyTorch equivalents), so the losses, the
+discriminator/generator alternation and the optimisers are the project's own. Every time is
+the median over repeats, A/B variants interleaved so background load hits both alike.
+--smoke runs each measurement a couple of times (CI, < 60 s); numbers are then meaningless.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from datetime import datetime, timezone
+from functools import partial
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import torch  # noqa: E402
+from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
+
+from benchmarks.data_loading import machine_info  # noqa: E402
+from src.data.normalization import Normalizer  # noqa: E402
+from src.lit.predictor import MotionPredictor  # noqa: E402
+from src.models.conv_encoder import IncrementalCEM  # noqa: E402
+from src.models.conv_s2s import ConvSeq2Seq  # noqa: E402
+from src.models.discriminator import Discriminator  # noqa: E402
+from src.models.gru_s2s import GRUSeq2Seq  # noqa: E402
+
+F_RAW, D, A, OBS, FUT = 99, 54, 15, 50, 25
+VAL_WINDOWS = 8 * A  # protocol: 8 test windows per action
+
+
+def sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def timed(fn, device, repeats: int) -> list[float]:
+    out = []
+    for _ in range(repeats):
+        sync(device)
+        t0 = time.perf_counter()
+        fn()
+        sync(device)
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def p90(xs: list[float]) -> float:
+    return sorted(xs)[min(len(xs) - 1, int(round(0.9 * (len(xs) - 1))))]
+
+
+# ---------------------------------------------------------------------------- models
+def conv_net(**kw) -> ConvSeq2Seq:
+    return ConvSeq2Seq(D, A, **kw)
+
+
+def module(kind: str, device: torch.device) -> MotionPredictor:
+    """A MotionPredictor as the configs build it (li2018 / martinez2017 hyper-parameters)."""
+    normalizer = Normalizer(torch.zeros(F_RAW), torch.ones(F_RAW), torch.arange(F_RAW) < D)
+    disc = None
+    if kind.startswith("conv"):
+        net = conv_net(
+            incremental=kind != "conv_recompute", share_dropout_masks=kind == "conv_shared_masks"
+        )
+        opt, lambda_2, clip = partial(torch.optim.Adam, lr=5e-5), 1e-3, None
+        if kind == "conv_adv":
+            disc = Discriminator(D, A, seq_len=OBS + FUT)
+    else:
+        net = GRUSeq2Seq(D, A)
+        opt, lambda_2, clip = partial(torch.optim.SGD, lr=5e-3), 0.0, 5.0
+    m = MotionPredictor(
+        net=net,
+        normalizer=normalizer,
+        dataset="h36m",
+        actions=[f"a{i}" for i in range(A)],
+        frame_ms=40.0,
+        future_len=FUT,
+        optimizer=opt,
+        lambda_2=lambda_2,
+        grad_clip_norm=clip,
+        eta_schedule=lambda it: 0.9,  # eq. (10) mixing on
+        discriminator=disc,
+        d_optimizer=partial(torch.optim.Adam, lr=5e-5) if disc is not None else None,
+        lambda_adv=0.01 if disc is not None else 0.0,
+        lambda_2_d=1e-3,
+    ).to(device)
+    # Bind the Lightning hooks training_step calls to plain PyTorch: no Trainer needed.
+    opts, scheds = m.configure_optimizers()
+    m.optimizers = lambda: opts
+    m.lr_schedulers = lambda: scheds
+    m.toggle_optimizer = m.untoggle_optimizer = lambda opt: None
+    m.manual_backward = lambda loss: loss.backward()
+    m.clip_gradients = lambda opt, gradient_clip_val, gradient_clip_algorithm: (
+        torch.nn.utils.clip_grad_norm_(m.net.parameters(), gradient_clip_val)
+    )
+    m.log = m.log_dict = lambda *a, **k: None
+    return m.train()
+
+
+def batch(B: int, device, adversarial: bool) -> dict:
+    n = 2 * B if adversarial else B  # the datamodule draws two batches (D and G) per step
+    return {
+        "observed": torch.randn(n, OBS, D, device=device),
+        "future": torch.randn(n, FUT, D, device=device),
+        "action": torch.randint(0, A, (n,), device=device),
+    }
+
+
+TRAIN_KINDS = {
+    "conv_adv": "conv_s2s + adversarial (default config)",
+    "conv": "conv_s2s, no adversarial (default: exact, recomputes under dropout)",
+    "conv_recompute": "conv_s2s, no adversarial, incremental=false",
+    "conv_shared_masks": "conv_s2s, no adversarial, incremental + share_dropout_masks",
+    "gru": "gru_s2s (Martinez residual sup.)",
+}
+
+
+def bench_training(device, batches, repeats) -> tuple[dict, dict]:
+    """Iterations/s per (kind, batch), interleaving kinds per repeat; plus FLOPs/iteration."""
+    times: dict[str, list[float]] = {}
+    flops: dict[str, float] = {}
+    for B in batches:
+        mods = {k: module(k, device) for k in TRAIN_KINDS}
+        data = {k: batch(B, device, k == "conv_adv") for k in TRAIN_KINDS}
+        for k, m in mods.items():  # warm-up, and the FLOPs of one iteration
+            with FlopCounterMode(display=False) as fc:
+                m.training_step(data[k], 0)
+            flops[f"{k}@{B}"] = fc.get_total_flops()
+        for _ in range(repeats):
+            for k, m in mods.items():
+                step = partial(m.training_step, data[k], 0)
+                times.setdefault(f"{k}@{B}", []).extend(timed(step, device, 1))
+    return {k: statistics.median(v) for k, v in times.items()}, flops
+
+
+def bench_inference(device, repeats, big: int) -> dict:
+    net = conv_net().to(device).eval()
+    x1 = torch.randn(1, OBS, D, device=device)
+    xb = torch.randn(big, OBS, D, device=device)
+    res: dict[str, list[float]] = {}
+    with torch.inference_mode():
+        for inc in (True, False):
+            net.incremental = inc
+            net(x1, FUT)  # warm-up
+        for _ in range(repeats):
+            for inc in (True, False):
+                net.incremental = inc
+                res.setdefault(f"latency_{'inc' if inc else 'recompute'}", []).extend(
+                    timed(lambda: net(x1, FUT), device, 1)
+                )
+        for inc in (True, False):
+            net.incremental = inc
+            res[f"big_{'inc' if inc else 'recompute'}"] = timed(
+                lambda: net(xb, FUT), device, max(2, repeats // 10)
+            )
+        outs = []
+        for inc in (True, False):
+            net.incremental = inc
+            outs.append(net(xb[:16], FUT))
+        max_diff = (outs[0] - outs[1]).abs().max().item()
+        cem = IncrementalCEM(net.short_encoder)
+        net.decode_incremental(x1, FUT, cache=(None, cem))
+        rows = [len(r) for r in cem.rows[1:]]
+        flop = {}
+        for inc in (True, False):
+            net.incremental = inc
+            with FlopCounterMode(display=False) as fc:
+                net(x1, FUT)
+            flop[inc] = fc.get_total_flops()
+    out = {}
+    for key in ("inc", "recompute"):
+        lat = res[f"latency_{key}"]
+        out[f"latency_ms_median_{key}"] = 1e3 * statistics.median(lat)
+        out[f"latency_ms_p90_{key}"] = 1e3 * p90(lat)
+        out[f"throughput_seq_s_{key}"] = big / statistics.median(res[f"big_{key}"])
+        out[f"flops_per_prediction_{key}"] = flop[key == "inc"]
+        out[f"gflops_achieved_b1_{key}"] = flop[key == "inc"] / statistics.median(lat) / 1e9
+    out["throughput_batch"] = big
+    out["max_abs_diff"] = max_diff
+    out["short_rows_computed"] = rows
+    out["short_rows_recompute"] = [FUT * s[1] for s in net.short_encoder.shapes]
+    return out
+
+
+def bench_matmul(device, n: int, repeats: int) -> float:
+    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
+    a @ b
+    return 2 * n**3 / statistics.median(timed(lambda: a @ b, device, repeats)) / 1e9
+
+
+def bench_validation(device, repeats) -> float:
+    """One validation pass: the 8-window protocol (120 windows), predict + metrics."""
+    m = module("conv_adv", device).eval()
+    b = {
+        "observed": torch.randn(VAL_WINDOWS, OBS, D, device=device),
+        "future": torch.randn(VAL_WINDOWS, FUT, D, device=device),
+        "action": torch.arange(VAL_WINDOWS, device=device) % A,
+    }
+
+    def run():
+        with torch.inference_mode():
+            m._evaluate(b)
+            m.euler.compute(), m.mpjpe.compute()
+            m.euler.reset(), m.mpjpe.reset()
+
+    return statistics.median(timed(run, device, repeats))
+
+
+def bench_data(batches: int) -> dict:
+    """Cached load of the real H3.6M arrays and train-window sampling, when data is present."""
+    data_dir = os.environ.get("MOTION_DATA_DIR")
+    if not data_dir or not (Path(data_dir) / "h3.6m").is_dir():
+        return {"note": "skipped: set MOTION_DATA_DIR to an unpacked data_dir (h3.6m/)"}
+    from src.data import H36MDataModule
+
+    try:
+        dm = H36MDataModule(Path(data_dir), allow_partial=True, batch_size=16)
+        t0 = time.perf_counter()
+        dm.setup("fit")
+        setup_s = time.perf_counter() - t0
+        it = iter(dm.train_dataloader())
+        next(it)
+        t0 = time.perf_counter()
+        for _ in range(batches):
+            next(it)
+        dt = time.perf_counter() - t0
+        return {
+            "cached_setup_s": setup_s,
+            "windows_per_s": batches * dm.batch_size / dt,
+            "note": f"H3.6M in {data_dir}, allow_partial, batch 16",
+        }
+    except Exception as err:  # report, do not fail the suite
+        return {"note": f"skipped: {type(err).__name__}: {err}"}
+
+
+# ---------------------------------------------------------------------------- report
+def markdown(r: dict) -> str:
+    c, t, inf = r["context"], r["training_it_s"], r["inference"]
+    lines = [
+        "| measurement | value |",
+        "|---|---|",
+    ]
+    for B in r["batches"]:
+        for k, label in TRAIN_KINDS.items():
+            lines.append(f"| train it/s, batch {B}: {label} | {t[f'{k}@{B}']:.2f} |")
+    for key, label in (("inc", "incremental"), ("recompute", "recompute")):
+        lines += [
+            f"| latency batch 1, 50->25, {label}: median ms | "
+            f"{inf[f'latency_ms_median_{key}']:.1f} |",
+            f"| latency batch 1, {label}: p90 ms | {inf[f'latency_ms_p90_{key}']:.1f} |",
+            f"| throughput batch {inf['throughput_batch']}, {label}: sequences/s | "
+            f"{inf[f'throughput_seq_s_{key}']:.0f} |",
+            f"| FLOPs per prediction, {label} (GFLOP) | "
+            f"{inf[f'flops_per_prediction_{key}'] / 1e9:.3f} |",
+            f"| achieved GFLOP/s at batch 1, {label} | {inf[f'gflops_achieved_b1_{key}']:.2f} |",
+        ]
+    lines.append(
+        "| short-term conv rows computed per prediction, conv1/2/3: incremental vs recompute | "
+        f"{inf['short_rows_computed']} vs {inf['short_rows_recompute']} |"
+    )
+    for k in ("conv_adv", "conv_shared_masks", "gru"):
+        B = r["batches"][0]
+        g = r["train_flops"][f"{k}@{B}"] * t[f"{k}@{B}"] / 1e9
+        lines.append(f"| achieved GFLOP/s training {k}, batch {B} | {g:.2f} |")
+    lines.append(
+        f"| machine float32 matmul GFLOP/s (n={r['matmul_n']}) | {r['matmul_gflops']:.1f} |"
+    )
+    d = r["data"]
+    if "windows_per_s" in d:
+        lines += [
+            f"| data: cached DataModule setup s | {d['cached_setup_s']:.2f} |",
+            f"| data: train windows sampled/s | {d['windows_per_s']:.0f} |",
+        ]
+    lines.append(f"| data | {d['note']} |")
+    lines += [
+        f"| validation pass (120 windows) s | {r['validation_s']:.3f} |",
+        f"| validation / (val_every={r['val_every']} train its, conv_adv batch "
+        f"{r['batches'][0]}) | {r['validation_fraction']:.4f} |",
+    ]
+    targets = r["targets"]
+    lines += ["", "| target | measured | met |", "|---|---|---|"]
+    for name, (value, ok) in targets.items():
+        lines.append(f"| {name} | {value} | {'yes' if ok else 'NO'} |")
+    head = [
+        f"Command: `{r['command']}`  ",
+        f"Date: {r['date']}  ",
+        f"Commit: {c['commit']}  ",
+        f"Machine: {c['cpu']}, {c['cores']} cores, torch {c['torch']} with "
+        f"{c['torch_threads']} threads, device {c['device']}",
+        "",
+    ]
+    return "\n".join(head + lines + NOTES) + "\n"
+
+
+NOTES = [
+    "",
+    "Notes (generated text, no hand-typed numbers):",
+    "",
+    "- Times are medians of interleaved repeats (A/B variants alternate, so background load",
+    "  hits both alike); on a shared, loaded machine absolute values are noisy, ratios less so.",
+    "- Default exact mode: in training the CEM dropout (0.2/0.2/0.5) draws a fresh mask per",
+    "  window when recomputing; kept rows cannot reproduce that, so training falls back to",
+    "  recomputation and runs at the recompute speed. `share_dropout_masks=true` runs the",
+    "  incremental encoder in training too (kept rows keep their masks: a correlated-mask",
+    "  variant of the reference regulariser), which is the row compared for the 2x target.",
+    "- What bounds the speed-up: see the conv-rows line. conv1 rows are cheap, conv2/conv3",
+    "  rows dear, and the bottom conv3 row sees padding in every window so it is recomputed",
+    "  each step; the short-term FC (per window), the long-term",
+    "  encoder, decoder and (adversarial) the discriminator are not incremental, so the counted",
+    "  FLOPs of a prediction fall by well under 2x and a training iteration by less.",
+    "- Latency at batch 1 on CPU is dominated by per-op overhead of many small convolutions",
+    "  (PyTorch picks its slow im2col path for tiny inputs), not by FLOPs: compare achieved",
+    "  GFLOP/s with the matmul line.",
+]
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--smoke", action="store_true", help="tiny run for CI (< 60 s)")
+    ap.add_argument("--json", type=Path, default=ROOT / "outputs" / "benchmark.json")
+    ap.add_argument("--markdown", type=Path, help="also write the report to this file")
+    ap.add_argument("--val-every", type=int, default=1000, help="conf/train.yaml val_every")
+    args = ap.parse_args(argv)
+    device = torch.device(args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("--device cuda: CUDA is not available on this machine")
+    torch.manual_seed(0)
+
+    smoke = args.smoke
+    batches = [2] if smoke else [16, 64]
+    context = {**machine_info(), "torch_threads": torch.get_num_threads(), "device": str(device)}
+    if device.type == "cuda":
+        context["device"] = torch.cuda.get_device_name(device)
+    train, flops = bench_training(device, batches, 1 if smoke else 5)
+    inference = bench_inference(device, 2 if smoke else 30, 4 if smoke else 256)
+    n = 256 if smoke else 2048
+    matmul = bench_matmul(device, n, 2 if smoke else 10)
+    val_s = bench_validation(device, 1 if smoke else 5)
+    B0 = batches[0]
+    train_its = {k: 1.0 / v for k, v in train.items()}
+    val_frac = val_s / (args.val_every / train_its[f"conv_adv@{B0}"])
+    speedup = train_its[f"conv_shared_masks@{B0}"] / train_its[f"conv_recompute@{B0}"]
+    default_speedup = train_its[f"conv@{B0}"] / train_its[f"conv_recompute@{B0}"]
+    lat = inference["latency_ms_median_inc"]
+    r = {
+        "command": "python benchmarks/benchmark.py "
+        + " ".join(sys.argv[1:] if argv is None else argv),
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "smoke": smoke,
+        "context": context,
+        "batches": batches,
+        "training_it_s": train_its,
+        "train_flops": flops,
+        "inference": inference,
+        "matmul_n": n,
+        "matmul_gflops": matmul,
+        "data": bench_data(3 if smoke else 200),
+        "validation_s": val_s,
+        "val_every": args.val_every,
+        "validation_fraction": val_frac,
+        "targets": {
+            "latency batch 1 <= 10 ms (incremental, median)": (f"{lat:.1f} ms", lat <= 10),
+            f"train iteration batch {B0} >= 2x recompute (shared dropout masks)": (
+                f"{speedup:.2f}x",
+                speedup >= 2,
+            ),
+            f"train iteration batch {B0} >= 2x recompute (default exact mode)": (
+                f"{default_speedup:.2f}x",
+                default_speedup >= 2,
+            ),
+            "same outputs (tests/test_incremental.py, max abs diff here)": (
+                f"{inference['max_abs_diff']:.1e}",
+                inference["max_abs_diff"] <= 1e-5,
+            ),
+        },
+    }
+    table = markdown(r)
+    print(table)
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(r, indent=1))
+    if args.markdown:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(table)
+    return r
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,226 @@
+"""Deployable predictor: a trained checkpoint in, raw exp-map futures out, no data files needed.
+
+    fc = MotionForecaster.from_checkpoint("outputs/.../checkpoints/last.ckpt")
+    future = fc.predict(frames)            # (50, F) or (B, 50, F) -> (..., 25, F)
+    stream = fc.stream()
+    for frame in camera:                   # (F,) each
+        future = stream.push(frame)        # None until 50 frames were seen
+
+Everything the model needs travels in the checkpoint (architecture.md): the network config
+(`ckpt["motion"]["config"]`), the weights, and the normaliser buffers (`normalizer.*`), so
+normalisation (protocol §2.1) and unnormalisation (§2.2) happen here, in raw F-column space.
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections import deque
+from pathlib import Path
+
+import hydra
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from src.data.normalization import Normalizer
+from src.lit.factory import CheckpointError, read_checkpoint
+from src.models.conv_s2s import ConvSeq2Seq
+
+
+class InferenceInputError(ValueError):
+    """Frames or an action given to MotionForecaster that it cannot predict from."""
+
+
+def _padding_of(config: dict) -> str:
+    """The conv padding that `padding: auto` resolved to (protocol §6.7: SAME H3.6M, VALID CMU)."""
+    target = config.get("data", {}).get("_target_")
+    if target is None:
+        raise CheckpointError("checkpoint config has no data._target_; cannot resolve padding")
+    return hydra.utils.get_class(target).conv_padding
+
+
+def build_net(ckpt: dict) -> tuple[nn.Module, Normalizer]:
+    """Rebuild (network, normaliser) from a checkpoint dict alone, weights loaded, eval mode."""
+    motion, state = ckpt["motion"], ckpt["state_dict"]
+    config = motion.get("config")
+    if not config or "model" not in config:
+        raise CheckpointError("checkpoint has no motion.config.model; it cannot be rebuilt")
+    if "normalizer.mean" not in state:
+        raise CheckpointError("checkpoint holds no normaliser (normalizer.* buffers)")
+    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
+    normalizer.load_state_dict(
+        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
+    )
+    node = dict(config["model"]["net"])
+    accepted = inspect.signature(hydra.utils.get_class(node["_target_"])).parameters
+    kwargs = {"pose_dim": normalizer.pose_dim, "num_actions": len(motion["actions"])}
+    if "normalizer" in accepted:
+        kwargs["normalizer"] = normalizer
+    if node.get("padding") == "auto":
+        node["padding"] = _padding_of(config)
+    net = hydra.utils.instantiate(node, **kwargs, _convert_="all")
+    weights = {k.removeprefix("net."): v for k, v in state.items() if k.startswith("net.")}
+    missing, unexpected = net.load_state_dict(weights, strict=False)
+    if missing or unexpected:
+        raise CheckpointError(
+            f"checkpoint weights do not fit the rebuilt network: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}"
+        )
+    return net.eval(), normalizer.eval()
+
+
+class _FixedHorizon(nn.Module):
+    """The normalised-space network with a fixed future_len, for export."""
+
+    def __init__(self, net: nn.Module, future_len: int):
+        super().__init__()
+        self.net, self.future_len = net, future_len
+
+    def forward(self, observed: Tensor, action: Tensor) -> Tensor:
+        return self.net(observed, self.future_len, action=action)
+
+
+class MotionForecaster:
+    """A trained predictor in eval mode; inputs and outputs are raw exp-map frames (..., F)."""
+
+    def __init__(
+        self,
+        net: nn.Module,
+        normalizer: Normalizer,
+        actions: list[str],
+        observed_len: int = 50,
+        device: str = "cpu",
+    ):
+        self.device = torch.device(device)
+        self.net = net.to(self.device).eval()
+        self.normalizer = normalizer.to(self.device).eval()
+        self.actions = list(actions)
+        self.observed_len = observed_len
+        self.num_features = normalizer.num_features
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, device: str = "cpu") -> MotionForecaster:
+        ckpt = read_checkpoint(path)
+        net, normalizer = build_net(ckpt)
+        observed_len = getattr(net, "observed_len", 50)
+        return cls(net, normalizer, ckpt["motion"]["actions"], observed_len, device)
+
+    # ------------------------------------------------------------------ checks
+    def _action_ids(self, action: str | None, batch: int) -> Tensor:
+        if action is None:
+            return torch.zeros(batch, dtype=torch.long, device=self.device)
+        if action not in self.actions:
+            raise InferenceInputError(
+                f"unknown action {action!r}; this model knows {self.actions} (or pass None)"
+            )
+        return torch.full((batch,), self.actions.index(action), device=self.device)
+
+    def _frames(self, frames: np.ndarray | Tensor, shape: str) -> Tensor:
+        x = torch.as_tensor(np.asarray(frames, dtype=np.float32), device=self.device)
+        if x.shape[-1:] != (self.num_features,):
+            raise InferenceInputError(
+                f"frames must be {shape} raw exp-map with F={self.num_features} columns "
+                f"(the model's dataset), got shape {tuple(x.shape)}"
+            )
+        if not torch.isfinite(x).all():
+            bad = torch.nonzero(~torch.isfinite(x))[0].tolist()
+            raise InferenceInputError(
+                f"frames contain NaN or inf (first at index {bad}); clean them"
+            )
+        return x
+
+    # ------------------------------------------------------------------ prediction
+    @torch.inference_mode()
+    def predict(
+        self, frames: np.ndarray, action: str | None = None, future_len: int = 25
+    ) -> np.ndarray:
+        """(observed_len, F) or (B, observed_len, F) raw frames -> (..., future_len, F)."""
+        T, F = self.observed_len, self.num_features
+        x = self._frames(frames, f"({T}, {F}) or (B, {T}, {F})")
+        single = x.dim() == 2
+        x = x.unsqueeze(0) if single else x
+        if x.dim() != 3 or x.shape[1] != T:
+            raise InferenceInputError(
+                f"frames must be ({T}, {F}) or (B, {T}, {F}): the last {T} observed frames; "
+                f"got shape {tuple(np.shape(frames))}"
+            )
+        if future_len < 1:
+            raise InferenceInputError(f"future_len must be >= 1, got {future_len}")
+        pred = self.net(
+            self.normalizer.normalize(x), future_len, action=self._action_ids(action, x.shape[0])
+        )
+        out = self.normalizer.unnormalize(pred).cpu().numpy()
+        return out[0] if single else out
+
+    def stream(self, action: str | None = None, future_len: int = 25) -> ForecastStream:
+        return ForecastStream(self, action, future_len)
+
+    # ------------------------------------------------------------------ export
+    def _example(self) -> tuple[Tensor, Tensor]:
+        observed = torch.zeros(1, self.observed_len, self.normalizer.pose_dim, device=self.device)
+        return observed, torch.zeros(1, dtype=torch.long, device=self.device)
+
+    def export_torchscript(self, path: str | Path, future_len: int = 25) -> Path:
+        """Trace the normalised-space net: (observed (B, 50, D), action (B,) long) -> (B, T, D).
+
+        Tracing records the decoding loop for this future_len (and, with the incremental
+        encoder, the fixed pattern of reused rows), so the file predicts exactly future_len."""
+        with torch.inference_mode(False), torch.no_grad():
+            traced = torch.jit.trace(
+                _FixedHorizon(self.net, future_len).eval(), self._example(), check_trace=False
+            )
+        traced.save(str(path))
+        return Path(path)
+
+    def export_onnx(self, path: str | Path, future_len: int = 25) -> Path:
+        """ONNX of the same normalised-space function, batch size dynamic."""
+        torch.onnx.export(
+            _FixedHorizon(self.net, future_len).eval(),
+            self._example(),
+            str(path),
+            input_names=["observed", "action"],
+            output_names=["future"],
+            dynamic_axes={"observed": {0: "batch"}, "action": {0: "batch"}, "future": {0: "batch"}},
+            dynamo=False,
+        )
+        return Path(path)
+
+
+class ForecastStream:
+    """Frame-by-frame forecasting over a ring buffer of the last observed_len frames.
+
+    With the incremental ConvSeq2Seq the conv rows of frames already seen are kept between
+    pushes (stable ids = stream positions), so a push only encodes what the new frame changed
+    plus the predicted frames; other networks re-run on the buffer.
+    """
+
+    def __init__(self, forecaster: MotionForecaster, action: str | None, future_len: int):
+        self.fc, self.future_len = forecaster, future_len
+        self.action = forecaster._action_ids(action, 1)
+        self.buffer: deque[Tensor] = deque(maxlen=forecaster.observed_len)
+        self.position = -1  # stream index of the last pushed frame
+        net = forecaster.net
+        self.cache = net.new_cache() if isinstance(net, ConvSeq2Seq) and net.incremental else None
+
+    @torch.inference_mode()
+    def push(self, frame: np.ndarray) -> np.ndarray | None:
+        """Add one raw frame (F,); returns (future_len, F) once observed_len frames were seen."""
+        F = self.fc.num_features
+        x = self.fc._frames(frame, f"({F},)")
+        if x.shape != (F,):
+            raise InferenceInputError(f"push takes one frame of shape ({F},), got {tuple(x.shape)}")
+        self.buffer.append(self.fc.normalizer.normalize(x)[None])
+        self.position += 1
+        if len(self.buffer) < self.fc.observed_len:
+            return None
+        window = torch.stack(list(self.buffer), dim=1)  # (1, observed_len, D)
+        net = self.fc.net
+        if self.cache is not None:
+            first = self.position - self.fc.observed_len + 1
+            pred = net.decode_incremental(window, self.future_len, cache=self.cache, first_id=first)
+            for cem in self.cache:
+                if cem is not None:
+                    cem.prune(first + 1)  # rows of the dropped frame and of predictions
+        else:
+            pred = net(window, self.future_len, action=self.action)
+        return self.fc.normalizer.unnormalize(pred)[0].cpu().numpy()

@@ -1,0 +1,135 @@
+"""MotionForecaster: checkpoint -> raw-frame predictions, streaming, export.
+
+One tiny training run (2 iterations, synthetic H3.6M-format data) writes the checkpoint the
+tests load; the forecaster must rebuild the network without reading any data file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from src.data.synthetic import write_synthetic_h36m
+from src.inference import InferenceInputError, MotionForecaster, build_net
+from src.lit.compose import compose_config
+from src.lit.factory import CheckpointError, read_checkpoint
+from src.train import train
+
+F = 99  # H3.6M raw columns
+
+
+@pytest.fixture(scope="module")
+def ckpt_path(tmp_path_factory):
+    root = tmp_path_factory.mktemp("inference")
+    write_synthetic_h36m(root / "data" / "synthetic")
+    cfg = compose_config(
+        "train",
+        [
+            "data=synthetic",
+            "trainer=cpu",
+            "iterations=2",
+            "val_every=2",
+            "adversarial=none",
+            "model.net.nf=4",
+            "model.net.d_z=32",
+            "+model.net.d_dec=32",
+        ],
+        root / "run",
+        root / "data",
+    )
+    train(cfg)
+    paths = sorted((root / "run").rglob("last.ckpt"))
+    assert paths, "the tiny training run wrote no last.ckpt"
+    return paths[0]
+
+
+@pytest.fixture(scope="module")
+def forecaster(ckpt_path):
+    return MotionForecaster.from_checkpoint(ckpt_path)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    rng = np.random.default_rng(0)
+    return (0.3 * rng.standard_normal((4, 60, F))).astype(np.float32)
+
+
+def reference_prediction(ckpt_path, x: np.ndarray, future_len: int) -> np.ndarray:
+    """By hand from the checkpoint: normalise (§2.1), recompute every window, unnormalise."""
+    net, norm = build_net(read_checkpoint(ckpt_path))
+    net.incremental = False
+    with torch.no_grad():
+        pred = net(norm.normalize(torch.as_tensor(x)), future_len)
+        return norm.unnormalize(pred).numpy()
+
+
+def test_rebuilds_weights_and_normaliser_from_the_checkpoint_alone(ckpt_path, forecaster):
+    state = read_checkpoint(ckpt_path)["state_dict"]
+    torch.testing.assert_close(forecaster.normalizer.mean, state["normalizer.mean"])
+    w = forecaster.net.decoder[0].weight
+    torch.testing.assert_close(w, state["net.decoder.0.weight"])
+    assert forecaster.net.short_encoder.shapes[0][0] == 16  # nf=4 from the run's config
+
+
+def test_predict_batch_and_single_match_the_manual_pipeline(ckpt_path, forecaster, frames):
+    x = frames[:, :50]
+    out = forecaster.predict(x)
+    assert out.shape == (4, 25, F)
+    np.testing.assert_allclose(out, reference_prediction(ckpt_path, x, 25), rtol=1e-4, atol=1e-5)
+    one = forecaster.predict(x[2], future_len=10)
+    assert one.shape == (10, F)
+    np.testing.assert_allclose(one, out[2, :10], rtol=1e-4, atol=1e-5)
+    # Columns the model ignores come back as the training mean (protocol §2.2).
+    unused = ~forecaster.normalizer.used.numpy()
+    np.testing.assert_allclose(
+        out[..., unused],
+        np.broadcast_to(forecaster.normalizer.mean.numpy()[unused], out[..., unused].shape),
+        atol=1e-6,
+    )
+
+
+def test_bad_inputs_raise_clear_errors(forecaster, frames):
+    with pytest.raises(InferenceInputError, match="F=99"):
+        forecaster.predict(frames[0, :50, :54])
+    with pytest.raises(InferenceInputError, match=r"\(50, 99\) or \(B, 50, 99\)"):
+        forecaster.predict(frames[0, :49])
+    bad = frames[0, :50].copy()
+    bad[7, 3] = np.nan
+    with pytest.raises(InferenceInputError, match=r"NaN.*\[7, 3\]"):
+        forecaster.predict(bad)
+    with pytest.raises(InferenceInputError, match="unknown action"):
+        forecaster.predict(frames[0, :50], action="flying")
+    with pytest.raises(CheckpointError, match="not found"):
+        MotionForecaster.from_checkpoint("/nonexistent/last.ckpt")
+
+
+def test_stream_matches_predict_on_each_window(forecaster, frames):
+    stream = forecaster.stream()
+    seq = frames[0]
+    for t in range(53):
+        out = stream.push(seq[t])
+        if t < 49:
+            assert out is None
+        else:  # window = frames t-49..t
+            expected = forecaster.predict(seq[t - 49 : t + 1])
+            np.testing.assert_allclose(out, expected, rtol=1e-4, atol=1e-5)
+    # the cache keeps only rows of frames still in the window
+    assert min(stream.cache[1].rows[0]) == 53 - 49
+    with pytest.raises(InferenceInputError, match=r"one frame of shape \(99,\)"):
+        stream.push(seq[:2])
+
+
+def test_exports_reproduce_the_eager_model(forecaster, frames, tmp_path):
+    norm = forecaster.normalizer
+    x = norm.normalize(torch.as_tensor(frames[:2, :50]))
+    action = torch.zeros(2, dtype=torch.long)
+    with torch.no_grad():
+        eager = forecaster.net(x, 25)
+    scripted = torch.jit.load(str(forecaster.export_torchscript(tmp_path / "m.pt")))
+    torch.testing.assert_close(scripted(x, action), eager, rtol=1e-4, atol=1e-5)
+    # onnx's reference evaluator: slow but exact, and needs no onnxruntime
+    reference = pytest.importorskip("onnx.reference")
+    path = forecaster.export_onnx(tmp_path / "m.onnx")
+    sess = reference.ReferenceEvaluator(str(path))
+    (out,) = sess.run(None, {"observed": x.numpy(), "action": action.numpy()})
+    np.testing.assert_allclose(out, eager.numpy(), rtol=1e-4, atol=1e-5)
