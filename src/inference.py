@@ -108,6 +108,11 @@ class MotionForecaster:
     # ------------------------------------------------------------------ checks
     def _action_ids(self, action: str | None, batch: int) -> Tensor:
         if action is None:
+            if getattr(self.net, "one_hot", False):
+                raise InferenceInputError(
+                    "this model takes the action label as input (trained with one-hot); pass "
+                    f"action= one of {self.actions}"
+                )
             return torch.zeros(batch, dtype=torch.long, device=self.device)
         if action not in self.actions:
             raise InferenceInputError(

@@ -133,3 +133,17 @@ def test_exports_reproduce_the_eager_model(forecaster, frames, tmp_path):
     sess = reference.ReferenceEvaluator(str(path))
     (out,) = sess.run(None, {"observed": x.numpy(), "action": action.numpy()})
     np.testing.assert_allclose(out, eager.numpy(), rtol=1e-4, atol=1e-5)
+
+
+def test_one_hot_model_requires_the_action():
+    from src.data.normalization import Normalizer
+    from src.inference import InferenceInputError, MotionForecaster
+    from src.models.gru_s2s import GRUSeq2Seq
+
+    normalizer = Normalizer.from_frames(np.random.default_rng(0).normal(size=(100, 99)))
+    net = GRUSeq2Seq(pose_dim=normalizer.pose_dim, num_actions=2, hidden=8, one_hot=True)
+    forecaster = MotionForecaster(net, normalizer, ["walking", "eating"], 50, "cpu")
+    frames = np.zeros((50, 99), dtype=np.float32)
+    with pytest.raises(InferenceInputError, match="pass action="):
+        forecaster.predict(frames)
+    assert forecaster.predict(frames, action="eating").shape == (25, 99)
