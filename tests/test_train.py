@@ -111,3 +111,25 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
     euler = result["tables"][0]
     assert euler["metric"] == "euler"
     assert (tmp_path / "eval" / "results.md").exists()
+
+
+@pytest.mark.parametrize(
+    "overrides",
+    [
+        ["model.net.residual=true", "model.net.one_hot=true"],
+        ["model.net.residual=false", "model.net.one_hot=false"],
+        ["model.net.residual=true", "model.net.one_hot=false", "model.net.tied=false"],
+        ["adversarial=li2018"],
+    ],
+    ids=["res-onehot", "plain-unsup", "res-unsup-untied", "adversarial"],
+)
+def test_gru_s2s_fast_dev_run(overrides, train_cfg):
+    """Martinez's model trains with residual and one-hot on and off, and with the adversarial
+    regulariser through the same LightningModule machinery."""
+    cfg = train_cfg("model=gru_s2s", "model.net.hidden=16", "debug=fast_dev_run", *overrides)
+    from src.train import train
+
+    torch.set_num_threads(1)
+    dm, module = _module_and_data(cfg)
+    assert module.adversarial == ("adversarial=li2018" in overrides)
+    train(cfg)
