@@ -333,6 +333,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json", type=Path, default=ROOT / "outputs" / "benchmark.json")
     ap.add_argument("--markdown", type=Path, help="also write the report to this file")
     ap.add_argument("--val-every", type=int, default=1000, help="conf/train.yaml val_every")
+    ap.add_argument("--readme", type=Path, help="put the headline numbers in this README's block")
     args = ap.parse_args(argv)
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
@@ -394,7 +395,32 @@ def main(argv: list[str] | None = None) -> dict:
     if args.markdown:
         args.markdown.parent.mkdir(parents=True, exist_ok=True)
         args.markdown.write_text(table)
+    if args.readme:
+        from src.report import replace_block
+
+        replace_block(args.readme, "performance", headline(r))
     return r
+
+
+def headline(r: dict) -> str:
+    """The few numbers the README quotes, generated from a benchmark result."""
+    c, inf, its = r["context"], r["inference"], r["training_it_s"]
+    B0 = r["batches"][0]
+    return "\n".join(
+        [
+            f"Measured by `{r['command']}` on {r['date']} at commit {c['commit']} "
+            f"({c['cpu']}, {c['cores']} cores, device {c['device']}):",
+            "",
+            f"- training, batch {B0}: {its[f'conv_adv@{B0}']:.2f} it/s for conv_s2s with the "
+            f"adversarial regulariser, {its[f'gru@{B0}']:.2f} it/s for gru_s2s;",
+            f"- prediction of 25 frames from 50 at batch 1: "
+            f"{inf['latency_ms_median_inc']:.1f} ms median (incremental encoder), "
+            f"{inf['latency_ms_median_recompute']:.1f} ms recomputing;",
+            f"- throughput at batch {inf['throughput_batch']}: "
+            f"{inf['throughput_seq_s_inc']:.0f} sequences/s;",
+            f"- matmul rate of the same machine: {r['matmul_gflops']:.0f} GFLOP/s.",
+        ]
+    )
 
 
 if __name__ == "__main__":
