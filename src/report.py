@@ -200,7 +200,8 @@ def main(argv: list[str] | None = None) -> int:
         }
         for protocol in args.protocols:
             result = evaluate(
-                [f"ckpt_path='{ckpt}'", f"protocol={protocol}"], work / f"{entry['label']}_{protocol}"
+                [f"ckpt_path='{ckpt}'", f"protocol={protocol}"],
+                work / f"{entry['label']}_{protocol}",
             )
             entry["results"][protocol] = result
             entry["missing_files"] = result["provenance"]["missing_files"]
