@@ -294,6 +294,8 @@ def markdown(r: dict) -> str:
     for name, (value, ok) in targets.items():
         lines.append(f"| {name} | {value} | {'yes' if ok else 'NO'} |")
     head = [
+        "# Performance",
+        "",
         f"Command: `{r['command']}`  ",
         f"Date: {r['date']}  ",
         f"Commit: {c['commit']}  ",
