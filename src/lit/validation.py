@@ -84,23 +84,24 @@ def validate_train_config(cfg: DictConfig) -> None:
         _require(sampling.steps >= 1, f"sampling.steps={sampling.steps} must be >= 1.")
     if sampling.get("k") is not None:
         _require(sampling.k >= 1, f"sampling.k={sampling.k} must be >= 1.")
-    protocol = cfg.data.get("eval_protocol")
-    if protocol is not None:
-        _require(
-            protocol in EVAL_PROTOCOLS,
-            f"data.eval_protocol={protocol!r} is unknown; use one of: " + ", ".join(EVAL_PROTOCOLS),
-        )
-    rule = cfg.metrics.dim_rule
-    _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
+    _check_protocol("data.eval_protocol", cfg.data.get("eval_protocol"))
+    _check_dim_rule(cfg)
 
 
 def validate_eval_config(cfg: DictConfig) -> None:
     """The evaluation settings that do not come from a checkpoint."""
+    _check_dim_rule(cfg)
+    _check_protocol("protocol", cfg.get("protocol"))
+
+
+def _check_dim_rule(cfg: DictConfig) -> None:
     rule = cfg.metrics.dim_rule
     _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
-    protocol = cfg.get("protocol")
+
+
+def _check_protocol(key: str, protocol: str | None) -> None:
     if protocol is not None:
         _require(
             protocol in EVAL_PROTOCOLS,
-            f"protocol={protocol!r} is unknown; use one of: " + ", ".join(EVAL_PROTOCOLS),
+            f"{key}={protocol!r} is unknown; use one of: " + ", ".join(EVAL_PROTOCOLS),
         )
