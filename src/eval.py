@@ -21,13 +21,12 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
+from src.lit.checkpoints import module_from_checkpoint, read_checkpoint
 from src.lit.factory import (
     ConfigError,
     build_datamodule,
     build_module,
     git_commit,
-    module_from_checkpoint,
-    read_checkpoint,
     register_resolvers,
 )
 from src.lit.validation import friendly_errors, validate_eval_config

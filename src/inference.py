@@ -23,7 +23,7 @@ import torch
 from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
-from src.lit.factory import CheckpointError, read_checkpoint
+from src.lit.checkpoints import CheckpointError, read_checkpoint
 from src.models.conv_s2s import ConvSeq2Seq
 
 

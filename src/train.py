@@ -21,21 +21,22 @@ import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from lightning.pytorch.callbacks import LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import LearningRateMonitor
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
-from src.lit.factory import (
-    ConfigError,
-    build_datamodule,
-    build_module,
+from src.lit.checkpoints import (
+    BestCheckpoint,
+    LastCheckpoint,
+    TrainingInterrupted,
     check_compatible,
     check_normalizer,
-    git_commit,
+    previous_best,
     read_checkpoint,
-    register_resolvers,
+    require_resumable,
 )
+from src.lit.factory import ConfigError, build_datamodule, build_module, git_commit, register_resolvers
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.validation import friendly_errors, validate_train_config
@@ -69,16 +70,6 @@ def _check_unused(folder: Path) -> None:
         )
 
 
-def _previous_best(ckpt: dict | None) -> tuple[float, str]:
-    """(best score, its checkpoint) recorded by the run a resumed run continues. Lightning does
-    not restore them when the checkpoint folder changes, which it always does on resume."""
-    for name, state in (ckpt or {}).get("callbacks", {}).items():
-        score = state.get("best_model_score") if name.startswith("ModelCheckpoint") else None
-        if score is not None and math.isfinite(float(score)):
-            return float(score), str(state.get("best_model_path", ""))
-    return math.inf, ""
-
-
 def train(cfg: DictConfig) -> float:
     validate_train_config(cfg)
     out_dir = Path(cfg.paths.output_dir)
@@ -95,6 +86,7 @@ def train(cfg: DictConfig) -> float:
     ckpt = None
     if cfg.ckpt_path:
         ckpt = read_checkpoint(cfg.ckpt_path)
+        require_resumable(ckpt, cfg.ckpt_path)
         check_compatible(ckpt, cfg, cfg.ckpt_path)
         check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
 
@@ -108,25 +100,20 @@ def train(cfg: DictConfig) -> float:
     }
     module = build_module(cfg, dm, run_info=run_info)
     dm.draws_per_step = 2 if module.adversarial else 1
+    if ckpt is not None:
+        dm.resume_iteration = int(ckpt["state_dict"]["iteration"])
 
     logger = TensorBoardLogger(
         save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False
     )
-    checkpoints = ModelCheckpoint(
-        dirpath=out_dir / "checkpoints",
-        # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
-        filename="best-epoch{epoch:03d}",
-        auto_insert_metric_name=False,
-        monitor="val/euler_avg",
-        mode="min",
-        save_last=True,
-        save_top_k=1,
-    )
+    checkpoints = BestCheckpoint(out_dir / "checkpoints")
+    last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
+    module.last_checkpoint = last.path
     trainer: L.Trainer = hydra.utils.instantiate(
         cfg.trainer,
         max_epochs=math.ceil(cfg.iterations / cfg.val_every),
         logger=logger,
-        callbacks=[checkpoints, LearningRateMonitor("step"), *FrameStripLogger.from_config(cfg)],
+        callbacks=[checkpoints, last, LearningRateMonitor("step"), *FrameStripLogger.from_config(cfg)],
     )
     if trainer.logger is not None and trainer.is_global_zero:
         add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
@@ -143,14 +130,14 @@ def train(cfg: DictConfig) -> float:
     best = checkpoints.best_model_score
     score = float(best) if best is not None else final["euler_avg"]
     best_path = checkpoints.best_model_path
-    prev_score, prev_path = _previous_best(ckpt)
+    prev_score, prev_path = previous_best(ckpt)
     if math.isfinite(prev_score) and not prev_score >= score:  # best epoch before the resume
         score, best_path = prev_score, prev_path
     if trainer.is_global_zero and not cfg.trainer.get("fast_dev_run"):
         summary = {
             "best_val_euler_avg": score,
             "best_checkpoint": best_path,
-            "last_checkpoint": checkpoints.last_model_path,
+            "last_checkpoint": str(last.path),
             "final_val_euler_avg": final["euler_avg"],
             "final_val_mpjpe_avg": final["mpjpe_avg"],
             "iterations": int(module.iteration),
@@ -175,6 +162,9 @@ def _device_name(trainer: L.Trainer) -> str:
 def main(cfg: DictConfig) -> float:
     try:
         score = train(cfg)
+    except TrainingInterrupted as err:
+        log.warning("%s", err)
+        raise SystemExit(128 + err.signum) from None
     except NonFiniteLossError as err:
         if HydraConfig.get().mode != RunMode.MULTIRUN:
             raise

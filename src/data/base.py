@@ -110,6 +110,7 @@ class MotionDataModule(L.LightningDataModule):
         self.num_workers = _positive("num_workers", num_workers, 0)
         self.seed = _positive("seed", seed, 0)
         self.draws_per_step = 1
+        self.resume_iteration = 0  # set by src.train when it resumes a checkpoint
 
         # Filled by setup().
         self.normalizer: Normalizer | None = None
@@ -322,6 +323,8 @@ class MotionDataModule(L.LightningDataModule):
             _positive("draws_per_step", self.draws_per_step),
             self.seed,
         )
+        # A resume from a checkpoint written between validations continues its epoch.
+        sampler.start_step = self.resume_iteration % self.steps_per_epoch
         return DataLoader(self._train_dataset, batch_sampler=sampler, **self._loader_kwargs())
 
     def _eval_loader(self) -> DataLoader:

@@ -113,6 +113,9 @@ class TrainWindowSampler(Sampler):
         self.draws_per_step = draws_per_step
         self.seed = seed
         self.epoch = 0
+        # Batches of the current epoch already trained on before a mid-epoch resume: drawn
+        # and dropped once, so the resumed run sees the batches the killed one would have.
+        self.start_step = 0
 
     @property
     def sampler(self) -> TrainWindowSampler:
@@ -128,7 +131,9 @@ class TrainWindowSampler(Sampler):
         rank, _ = _rank_and_world()
         rng = np.random.default_rng([self.seed, self.epoch, rank])
         n = self.batch_size * self.draws_per_step
-        for _ in range(self.steps_per_epoch):
+        skip, self.start_step = self.start_step, 0
+        for step in range(self.steps_per_epoch):
             seqs = self.eligible[rng.integers(0, self.eligible.size, size=n)]
             starts = rng.integers(self.low, self.highs[seqs])
-            yield list(zip(seqs.tolist(), starts.tolist(), strict=True))
+            if step >= skip:
+                yield list(zip(seqs.tolist(), starts.tolist(), strict=True))

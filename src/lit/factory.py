@@ -1,5 +1,5 @@
-"""Turns composed Hydra configs into datamodules and LightningModules, and checkpoints back
-into them. The entry points (train, eval, visualize) only call these functions."""
+"""Turns composed Hydra configs into datamodules and LightningModules. The entry points
+(train, eval, visualize) only call these functions; checkpoints live in src/lit/checkpoints.py."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-import torch
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
@@ -22,10 +21,6 @@ PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 class ConfigError(ValueError):
     """A configuration value or combination that cannot work."""
-
-
-class CheckpointError(ValueError):
-    """A checkpoint that is missing, unreadable, or does not match the requested config."""
 
 
 def register_resolvers() -> None:
@@ -125,131 +120,3 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
         dim_rule=cfg.metrics.dim_rule,
         run_info=run_info,
     )
-
-
-# ---------------------------------------------------------------------------- checkpoints
-def read_checkpoint(path: str | Path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(
-            f"checkpoint not found: {path}. Runs keep theirs in "
-            "outputs/train/runs/<run>/<time>/checkpoints/ (best-*.ckpt, last.ckpt)."
-        )
-    try:
-        # weights_only: a file from elsewhere cannot run code on load; this project's
-        # checkpoints hold only tensors and plain containers.
-        ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a damaged file
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise CheckpointError(
-            f"cannot read checkpoint {path}: {first[:300]}. The file is damaged (e.g. "
-            "truncated by a killed copy) or was not written by torch.save; use another "
-            "checkpoint of the run (last.ckpt, best-*.ckpt)."
-        ) from err
-    if not isinstance(ckpt, dict) or "motion" not in ckpt or "state_dict" not in ckpt:
-        raise CheckpointError(
-            f"{path} is not a checkpoint written by this project's training (no 'motion' "
-            "section). Train one with `python -m src.train ...`."
-        )
-    return ckpt
-
-
-def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
-    """Refuse a checkpoint whose model or data differ from what the config asks for."""
-    saved = ckpt["motion"]["config"]
-    problems = []
-    if cfg.get("model") is not None and cfg.model.name != saved["model"]["name"]:
-        problems.append(
-            f"architecture: checkpoint is {saved['model']['name']}, config asks for "
-            f"model={cfg.model.name}"
-        )
-    if cfg.get("data") is not None and cfg.data.name != saved["data"]["name"]:
-        problems.append(
-            f"dataset: checkpoint was trained on {saved['data']['name']}, config asks for "
-            f"data={cfg.data.name}"
-        )
-    if cfg.get("model") is not None and not problems:
-        want = OmegaConf.to_container(cfg.model.net, resolve=True)
-        have = saved["model"]["net"]
-        diff = [
-            k for k in want if k != "padding" and k in have and want[k] != have[k] and k[0] != "_"
-        ]
-        if diff:
-            problems.append(
-                "architecture settings: "
-                + ", ".join(f"{k}={have[k]} in checkpoint vs {want[k]}" for k in diff)
-            )
-    if problems:
-        raise CheckpointError(
-            f"checkpoint {path} does not match the config: "
-            + "; ".join(problems)
-            + ". Drop the model=/data= overrides to use the checkpoint's own, or pick the "
-            "checkpoint of the run you mean."
-        )
-
-
-def check_normalizer(
-    ckpt: dict, normalizer: Normalizer, path: str | Path, actions: list[str] | None = None
-) -> None:
-    """Resuming training on data whose statistics (or action labels) differ would silently
-    change the model."""
-    saved_actions = ckpt["motion"].get("actions")
-    if actions is not None and saved_actions is not None and list(actions) != saved_actions:
-        raise CheckpointError(
-            f"actions: checkpoint {path} was trained on actions {saved_actions}, the data "
-            f"config gives {list(actions)}. Set data.actions as in the run that wrote it."
-        )
-    state = ckpt["state_dict"]
-    used = state.get("normalizer.used")
-    if used is None:
-        return
-    if used.shape != normalizer.used.shape or int(used.sum()) != normalizer.pose_dim:
-        raise CheckpointError(
-            f"pose dimension: checkpoint {path} uses {int(used.sum())} of {used.numel()} "
-            f"columns, the data gives {normalizer.pose_dim} of {normalizer.num_features}. "
-            "It was trained on another dataset or action set."
-        )
-    if not (
-        torch.equal(used, normalizer.used.cpu())
-        and torch.allclose(state["normalizer.mean"], normalizer.mean.cpu(), atol=1e-5)
-        and torch.allclose(state["normalizer.std"], normalizer.std.cpu(), atol=1e-5)
-    ):
-        raise CheckpointError(
-            f"normalisation statistics: checkpoint {path} was trained with different "
-            "statistics (different training files or actions). Use the same data config "
-            "(data.actions, subjects, allow_partial) as the run that wrote it."
-        )
-
-
-def module_from_checkpoint(ckpt: dict, cfg: DictConfig, path: str | Path):
-    """Rebuild (datamodule, module) from a checkpoint; the normaliser comes from the checkpoint,
-    so evaluation never re-reads the training data."""
-    saved = OmegaConf.create(ckpt["motion"]["config"])
-    check_compatible(ckpt, cfg, path)
-    data_cfg = saved.data
-    # Where data lives is a property of this machine, not of the checkpoint.
-    for key in ("data_dir", "archive_dir"):
-        data_cfg[key] = cfg.paths[key]
-    if cfg.get("data") is not None:  # evaluation settings (protocol, batch size) may differ
-        for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
-            data_cfg[key] = cfg.data[key]
-    if cfg.get("protocol"):
-        data_cfg.eval_protocol = cfg.protocol
-    state = ckpt["state_dict"]
-    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
-    normalizer.load_state_dict(
-        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
-    )
-    dm = build_datamodule(data_cfg, normalizer=normalizer)
-    dm.prepare_data()
-    dm.setup("validate")
-    module_cfg = OmegaConf.merge(saved, {"metrics": cfg.metrics, "sampling": saved.get("sampling")})
-    module = build_module(module_cfg, dm, run_info=ckpt["motion"])
-    missing, unexpected = module.load_state_dict(state, strict=False)
-    missing = [k for k in missing if not k.startswith(("euler.", "mpjpe."))]
-    if missing or unexpected:
-        raise CheckpointError(
-            f"checkpoint {path} does not fit the rebuilt model: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}. It was written by an incompatible version."
-        )
-    return dm, module

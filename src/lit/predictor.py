@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import lightning as L
@@ -221,9 +222,7 @@ class MotionPredictor(L.LightningModule):
             raise NonFiniteLossError(
                 f"non-finite loss at training iteration {int(self.iteration)}: {bad}. "
                 f"Last finite losses (oldest first): {list(self._recent_losses) or 'none yet'}. "
-                "The last checkpoint written before this point is kept in the run's "
-                "checkpoints/ folder; lower the learning rate or check the data, then resume "
-                "with ckpt_path=.../last.ckpt."
+                f"{self._last_checkpoint_note()} Lower the learning rate or check the data."
             )
 
     # ---------------------------------------------------------------- evaluation
@@ -291,9 +290,15 @@ class MotionPredictor(L.LightningModule):
             raise NonFiniteLossError(
                 f"non-finite weights after training iteration {int(self.iteration)} "
                 f"({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''}); no checkpoint was "
-                "written from them, the previous one in the run's checkpoints/ folder is kept. "
+                f"written from them. {self._last_checkpoint_note()} "
                 f"Last finite losses (oldest first): {list(self._recent_losses) or 'none yet'}."
             )
+
+    def _last_checkpoint_note(self) -> str:
+        path = getattr(self, "last_checkpoint", None)
+        if path is None or not Path(path).is_file():
+            return "No checkpoint was written before this point."
+        return f"The last good checkpoint is {path}; resume from it with ckpt_path={path}."
 
     def on_validation_start(self) -> None:
         self._check_finite_weights()

@@ -11,7 +11,8 @@ from omegaconf import DictConfig
 
 from src.data.base import EVAL_PROTOCOLS
 from src.data.errors import DataError
-from src.lit.factory import CheckpointError, ConfigError
+from src.lit.checkpoints import CheckpointError
+from src.lit.factory import ConfigError
 from src.lit.predictor import NonFiniteLossError
 
 log = logging.getLogger("src")

@@ -1,0 +1,334 @@
+"""Everything about checkpoint files: writing them during training, reading and checking them.
+
+Two files per run folder, with two purposes:
+
+- `last.ckpt`, the run's resume point: everything needed to continue (weights, both
+  optimisers, LR schedulers, loop counters, random state). Rewritten at every validation,
+  every `checkpoint_every` iterations and when SIGINT/SIGTERM arrive, always atomically
+  (written beside, then renamed), so a kill during a write leaves the previous one intact.
+- `best-epochNNN.ckpt`, the best validation error of the whole run, resumes included: lean
+  (weights, normaliser, config and actions; no optimiser state), for `src.eval` and
+  `MotionForecaster`.
+
+Why not Lightning's ModelCheckpoint(save_last=True) alone: in Lightning 2.6, with validation
+at the epoch's end, it rewrites last.ckpt only in a call that also wrote a top-k file, i.e.
+only when the monitored error improved (model_checkpoint.py, on_validation_end). A run whose
+error rose after its best point kept an old last.ckpt and a resume silently redid the work.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import signal
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from omegaconf import DictConfig, OmegaConf
+
+from src.data.normalization import Normalizer
+
+log = logging.getLogger(__name__)
+
+LAST = "last.ckpt"
+RESUME_KEYS = ("optimizer_states", "lr_schedulers", "loops", "callbacks")
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that is missing, unreadable, or does not match the requested config."""
+
+
+class TrainingInterrupted(RuntimeError):
+    """SIGINT or SIGTERM stopped training; `path` is the resumable checkpoint written."""
+
+    def __init__(self, signum: int, path: Path, iteration: int):
+        self.signum, self.path, self.iteration = signum, path, iteration
+        super().__init__(
+            f"{signal.Signals(signum).name} received: stopped after iteration {iteration} and "
+            f"wrote {path}. Resume with: python -m src.train ckpt_path={path}"
+        )
+
+
+# ---------------------------------------------------------------------------- writing
+def atomic_save(obj: Any, path: Path) -> None:
+    """torch.save to a temporary file beside `path`, then rename: readers and a later resume
+    see the old file or the new one, never a half-written one."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            torch.save(obj, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def slim(ckpt: dict) -> dict:
+    """What evaluation and inference need: no optimiser, scheduler, loop or callback state."""
+    return {k: v for k, v in ckpt.items() if k not in RESUME_KEYS}
+
+
+class LastCheckpoint(Callback):
+    """Writes the resumable `last.ckpt` at every validation, every `every` iterations (0: off)
+    and, on SIGINT/SIGTERM, after the iteration in progress; then training stops with
+    TrainingInterrupted. A second signal aborts at once."""
+
+    def __init__(self, dirpath: str | Path, every: int = 0):
+        self.path = Path(dirpath) / LAST
+        self.every = int(every)
+        self._signal: int | None = None
+        self._previous: dict[int, Any] = {}
+        self._saved_at = -1
+
+    # Handlers are installed inside fit (after Lightning's own SIGTERM connector) and the
+    # previous ones restored at teardown, so nothing outlives the run.
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._previous[signum] = signal.signal(signum, self._on_signal)
+            except ValueError:  # not the main thread (e.g. a notebook's worker): no handler
+                pass
+
+    def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+        self._previous.clear()
+
+    def _on_signal(self, signum: int, frame) -> None:
+        if self._signal is not None:  # second Ctrl-C: the user means it
+            signal.signal(signum, self._previous.get(signum, signal.SIG_DFL))
+            raise KeyboardInterrupt
+        self._signal = signum
+        log.warning(
+            "%s received: finishing the current iteration, then writing %s "
+            "(send it again to abort without saving)",
+            signal.Signals(signum).name,
+            self.path,
+        )
+
+    def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        iteration = int(pl_module.iteration)
+        if iteration == self._saved_at:
+            return
+        tmp = self.path.with_name(f".{LAST}.partial")
+        trainer.save_checkpoint(tmp)  # every rank takes part; only rank 0 writes
+        if trainer.is_global_zero:
+            os.replace(tmp, self.path)
+        trainer.strategy.barrier("last_checkpoint")
+        self._saved_at = iteration
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        iteration = int(pl_module.iteration)
+        if self._signal is not None:
+            self.save(trainer, pl_module)
+            raise TrainingInterrupted(self._signal, self.path, iteration)
+        if self.every and iteration % self.every == 0:
+            self.save(trainer, pl_module)
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if not trainer.sanity_checking and not trainer.fast_dev_run:
+            self.save(trainer, pl_module)
+
+
+class BestCheckpoint(ModelCheckpoint):
+    """Lean `best-epochNNN.ckpt` of the lowest validation error over the whole run.
+
+    A resumed run writes into a new folder; Lightning then forgets the best score
+    (ModelCheckpoint.load_state_dict keeps it only for the same dirpath) and would save a worse
+    model as 'best'. Here the score and path carry over, and a file of the earlier folder is
+    never deleted: that folder is the user's record of the run before the resume.
+    """
+
+    def __init__(self, dirpath: str | Path, monitor: str = "val/euler_avg"):
+        super().__init__(
+            dirpath=dirpath,
+            # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
+            filename="best-epoch{epoch:03d}",
+            auto_insert_metric_name=False,
+            monitor=monitor,
+            mode="min",
+            save_last=False,
+            save_top_k=1,
+            save_weights_only=True,
+        )
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        super().load_state_dict(state_dict)
+        score = state_dict.get("best_model_score")
+        if score is not None and math.isfinite(float(score)):
+            self.best_model_score = torch.as_tensor(float(score))
+            self.best_model_path = state_dict.get("best_model_path", "")
+            self.best_k_models = {self.best_model_path: self.best_model_score}
+            self.kth_best_model_path = self.best_model_path
+            self.kth_value = self.best_model_score
+
+    def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
+        if Path(filepath).resolve().parent == Path(self.dirpath).resolve():
+            super()._remove_checkpoint(trainer, filepath)
+
+
+def previous_best(ckpt: dict | None) -> tuple[float, str]:
+    """(best score, its file) recorded in a checkpoint's BestCheckpoint state."""
+    for name, state in (ckpt or {}).get("callbacks", {}).items():
+        score = state.get("best_model_score") if "Checkpoint" in name else None
+        if score is not None and math.isfinite(float(score)):
+            return float(score), str(state.get("best_model_path", ""))
+    return math.inf, ""
+
+
+# ---------------------------------------------------------------------------- reading
+def read_checkpoint(path: str | Path) -> dict:
+    path = Path(path)
+    if path.is_dir():
+        raise CheckpointError(
+            f"{path} is a folder; give a checkpoint file inside it, e.g. "
+            f"{path / 'checkpoints' / LAST}"
+        )
+    if not path.is_file():
+        raise CheckpointError(
+            f"checkpoint not found: {path}. Runs keep theirs in "
+            "outputs/train/runs/<run>/<time>/checkpoints/ (best-*.ckpt, last.ckpt)."
+        )
+    try:
+        # weights_only: a file from elsewhere cannot run code on load; this project's
+        # checkpoints hold only tensors and plain containers.
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a damaged file
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise CheckpointError(
+            f"cannot read checkpoint {path}: {first[:300]}. The file is damaged (e.g. "
+            "truncated by a killed copy) or was not written by torch.save; use another "
+            "checkpoint of the run (last.ckpt, best-*.ckpt)."
+        ) from err
+    if not isinstance(ckpt, dict) or "motion" not in ckpt or "state_dict" not in ckpt:
+        raise CheckpointError(
+            f"{path} is not a checkpoint written by this project's training (no 'motion' "
+            "section). Train one with `python -m src.train ...`."
+        )
+    return ckpt
+
+
+def require_resumable(ckpt: dict, path: str | Path) -> None:
+    missing = [k for k in ("optimizer_states", "loops") if k not in ckpt]
+    if missing:
+        raise CheckpointError(
+            f"{path} holds weights only (a lean best checkpoint), not the optimiser and loop "
+            f"state a resume needs; resume from the run's {LAST} instead."
+        )
+
+
+def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
+    """Refuse a checkpoint whose model or data differ from what the config asks for."""
+    saved = ckpt["motion"]["config"]
+    problems = []
+    if cfg.get("model") is not None and cfg.model.name != saved["model"]["name"]:
+        problems.append(
+            f"architecture: checkpoint is {saved['model']['name']}, config asks for "
+            f"model={cfg.model.name}"
+        )
+    if cfg.get("data") is not None and cfg.data.name != saved["data"]["name"]:
+        problems.append(
+            f"dataset: checkpoint was trained on {saved['data']['name']}, config asks for "
+            f"data={cfg.data.name}"
+        )
+    if cfg.get("model") is not None and not problems:
+        want = OmegaConf.to_container(cfg.model.net, resolve=True)
+        have = saved["model"]["net"]
+        diff = [
+            k for k in want if k != "padding" and k in have and want[k] != have[k] and k[0] != "_"
+        ]
+        if diff:
+            problems.append(
+                "architecture settings: "
+                + ", ".join(f"{k}={have[k]} in checkpoint vs {want[k]}" for k in diff)
+            )
+    if problems:
+        raise CheckpointError(
+            f"checkpoint {path} does not match the config: "
+            + "; ".join(problems)
+            + ". Drop the model=/data= overrides to use the checkpoint's own, or pick the "
+            "checkpoint of the run you mean."
+        )
+
+
+def check_normalizer(
+    ckpt: dict, normalizer: Normalizer, path: str | Path, actions: list[str] | None = None
+) -> None:
+    """Resuming training on data whose statistics (or action labels) differ would silently
+    change the model."""
+    saved_actions = ckpt["motion"].get("actions")
+    if actions is not None and saved_actions is not None and list(actions) != saved_actions:
+        raise CheckpointError(
+            f"actions: checkpoint {path} was trained on actions {saved_actions}, the data "
+            f"config gives {list(actions)}. Set data.actions as in the run that wrote it."
+        )
+    state = ckpt["state_dict"]
+    used = state.get("normalizer.used")
+    if used is None:
+        return
+    if used.shape != normalizer.used.shape or int(used.sum()) != normalizer.pose_dim:
+        raise CheckpointError(
+            f"pose dimension: checkpoint {path} uses {int(used.sum())} of {used.numel()} "
+            f"columns, the data gives {normalizer.pose_dim} of {normalizer.num_features}. "
+            "It was trained on another dataset or action set."
+        )
+    if not (
+        torch.equal(used, normalizer.used.cpu())
+        and torch.allclose(state["normalizer.mean"], normalizer.mean.cpu(), atol=1e-5)
+        and torch.allclose(state["normalizer.std"], normalizer.std.cpu(), atol=1e-5)
+    ):
+        raise CheckpointError(
+            f"normalisation statistics: checkpoint {path} was trained with different "
+            "statistics (different training files or actions). Use the same data config "
+            "(data.actions, subjects, allow_partial) as the run that wrote it."
+        )
+
+
+def normalizer_from_checkpoint(ckpt: dict) -> Normalizer:
+    state = ckpt["state_dict"]
+    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
+    normalizer.load_state_dict(
+        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
+    )
+    return normalizer
+
+
+def load_weights(module: torch.nn.Module, ckpt: dict, path: str | Path) -> None:
+    missing, unexpected = module.load_state_dict(ckpt["state_dict"], strict=False)
+    missing = [k for k in missing if not k.startswith(("euler.", "mpjpe."))]
+    if missing or unexpected:
+        raise CheckpointError(
+            f"checkpoint {path} does not fit the rebuilt model: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}. It was written by an incompatible version."
+        )
+
+
+def module_from_checkpoint(ckpt: dict, cfg: DictConfig, path: str | Path):
+    """Rebuild (datamodule, module) from a checkpoint; the normaliser comes from the checkpoint,
+    so evaluation never re-reads the training data."""
+    from src.lit.factory import build_datamodule, build_module
+
+    saved = OmegaConf.create(ckpt["motion"]["config"])
+    check_compatible(ckpt, cfg, path)
+    data_cfg = saved.data
+    # Where data lives is a property of this machine, not of the checkpoint.
+    for key in ("data_dir", "archive_dir"):
+        data_cfg[key] = cfg.paths[key]
+    if cfg.get("data") is not None:  # evaluation settings (protocol, batch size) may differ
+        for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
+            data_cfg[key] = cfg.data[key]
+    if cfg.get("protocol"):
+        data_cfg.eval_protocol = cfg.protocol
+    dm = build_datamodule(data_cfg, normalizer=normalizer_from_checkpoint(ckpt))
+    dm.prepare_data()
+    dm.setup("validate")
+    module_cfg = OmegaConf.merge(saved, {"metrics": cfg.metrics, "sampling": saved.get("sampling")})
+    module = build_module(module_cfg, dm, run_info=ckpt["motion"])
+    load_weights(module, ckpt, path)
+    return dm, module
