@@ -36,7 +36,13 @@ from src.lit.checkpoints import (
     read_checkpoint,
     require_resumable,
 )
-from src.lit.factory import ConfigError, build_datamodule, build_module, git_commit, register_resolvers
+from src.lit.factory import (
+    ConfigError,
+    build_datamodule,
+    build_module,
+    git_commit,
+    register_resolvers,
+)
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.validation import friendly_errors, validate_train_config
@@ -113,7 +119,12 @@ def train(cfg: DictConfig) -> float:
         cfg.trainer,
         max_epochs=math.ceil(cfg.iterations / cfg.val_every),
         logger=logger,
-        callbacks=[checkpoints, last, LearningRateMonitor("step"), *FrameStripLogger.from_config(cfg)],
+        callbacks=[
+            checkpoints,
+            last,
+            LearningRateMonitor("step"),
+            *FrameStripLogger.from_config(cfg),
+        ],
     )
     if trainer.logger is not None and trainer.is_global_zero:
         add_error_curve_layout(logger.experiment, dm.actions, module.horizons)

@@ -11,8 +11,8 @@ import torch
 
 from src.data.synthetic import write_synthetic_h36m
 from src.inference import InferenceInputError, MotionForecaster, build_net
-from src.lit.compose import compose_config
 from src.lit.checkpoints import CheckpointError, read_checkpoint
+from src.lit.compose import compose_config
 from src.train import train
 
 F = 99  # H3.6M raw columns
