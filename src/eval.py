@@ -29,8 +29,8 @@ from src.lit.factory import (
     git_commit,
     register_resolvers,
 )
-from src.lit.validation import friendly_errors, validate_eval_config
-from src.reporting.published import ReportingError, published_table
+from src.lit.validation import hydra_entry, validate_eval_config
+from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
 
 log = logging.getLogger(__name__)
@@ -65,22 +65,28 @@ def load_for_eval(cfg: DictConfig):
     return dm, module, OmegaConf.to_container(cfg.model, resolve=True), cfg.data.name
 
 
-def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
-    """The paper's numbers for this model on this dataset, from the model config's `published`
-    entry ({paper, method} or one such entry per dataset); (None, None) when a paper has none."""
-    if ref and dataset in ref:
-        ref = ref[dataset]
-    if not ref or "paper" not in ref:
-        return None, None
-    try:
-        table = published_table(ref["paper"], ref.get("table"), dataset, ref["method"])
-    except ReportingError:
-        return None, None
-    return table, f"{ref['paper']} {ref['method']}"
+def training_run_name(ckpt_path: str | Path) -> str:
+    """The name of the training run a checkpoint belongs to: `run_name` of the run's
+    config.yaml (<run>/checkpoints/<file>.ckpt), else the run folder's name (its parent's when
+    the folder is a timestamp)."""
+    path = Path(ckpt_path)
+    run = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+    config = run / "config.yaml"
+    if config.is_file():
+        try:
+            name = OmegaConf.load(config).get("run_name")
+        except Exception:  # noqa: BLE001 (an unreadable config only loses the name)
+            name = None
+        if isinstance(name, str) and name:
+            return name
+    stamp = run.name.replace("-", "").replace("_", "")
+    return run.parent.name if stamp.isdigit() else run.name
 
 
 def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[ResultTable]:
-    published, label = published_for(model_cfg.get("published"), dm.dataset_name)
+    """The Euler and MPJPE tables of an evaluation on `dataset` (the data's own name, e.g.
+    "synthetic": the published numbers appear only beside results on the paper's dataset)."""
+    published, label = published_for(model_cfg.get("published"), dataset)
     tables = []
     for metric, title, unit in (
         ("euler", "Euler-angle error", "rad"),
@@ -121,6 +127,7 @@ def evaluate(cfg: DictConfig) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     provenance = {
         "model": model_cfg["name"],
+        "run_name": training_run_name(cfg.ckpt_path) if cfg.ckpt_path else model_cfg["name"],
         "dataset": dataset,
         "checkpoint": str(cfg.ckpt_path) if cfg.ckpt_path else None,
         "eval_protocol": dm.eval_protocol,
@@ -139,8 +146,7 @@ def evaluate(cfg: DictConfig) -> dict:
     return result
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="eval")
-@friendly_errors
+@hydra_entry("eval")
 def main(cfg: DictConfig) -> None:
     evaluate(cfg)
 

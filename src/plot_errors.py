@@ -9,10 +9,15 @@ the average row (mean over the evaluated actions, protocol §4.1 step 6) or one 
 `published=true` adds the paper's curve, dashed, where results.json carries one.
 Arguments are `key=value` pairs (OmegaConf's command-line syntax); `out` defaults to
 outputs/plots/errors_<metric>_<action>.png.
+
+Each line is labelled by its run's name and dataset ("zero_velocity (cmu)"), told apart further
+where two would read the same. All files must come from one dataset: errors on different
+datasets are not comparable on one axis.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 import sys
 from pathlib import Path
@@ -23,8 +28,24 @@ from omegaconf import OmegaConf
 from src.lit.factory import PROJECT_ROOT, ConfigError
 from src.lit.validation import friendly_errors
 from src.reporting.plots import error_vs_horizon
+from src.reporting.published import published_datasets
 
 METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
+OPTIONS = {
+    "results": "[a/results.json,b/results.json,...]  the results.json files of src.eval (required)",
+    "metric": "euler|mpjpe  which error (default euler)",
+    "action": "NAME|average  one action, or the mean over the evaluated actions (default)",
+    "labels": "[name,...]  legend entries, one per results file (default: run name and dataset)",
+    "published": "true|false  add the paper's curve, dashed, where the results carry one",
+    "out": "PATH.png  where to write (default outputs/plots/errors_<metric>_<action>.png)",
+}
+
+
+def usage() -> str:
+    """What `python -m src.plot_errors --help` prints."""
+    lines = [__doc__.strip(), "", "Arguments (key=value):"]
+    lines += [f"  {key}={text}" for key, text in OPTIONS.items()]
+    return "\n".join(lines)
 
 
 def read_results(path: str | Path) -> dict:
@@ -83,22 +104,24 @@ def plot_errors(
         raise ConfigError("results=[...] is empty: give at least one results.json")
     if labels is not None and len(labels) != len(paths):
         raise ConfigError(f"labels has {len(labels)} entries for {len(paths)} results files")
+    results = [read_results(path) for path in paths]
+    datasets = one_dataset(results, paths)
+    names = legend_labels(results, paths) if labels is None else list(labels)
+    if len(set(names)) < len(names):
+        twice = sorted({n for n in names if names.count(n) > 1})
+        raise ConfigError(f"labels name {twice} more than once; give each results file its own")
     curves, dashed, units = [], [], set()
-    for i, path in enumerate(paths):
-        data = read_results(path)
+    for name, data, path in zip(names, results, paths, strict=True):
         ours, pub, unit = curve(data, metric, action, str(path))
         units.add(unit)
-        prov = data.get("provenance", {})
-        label = labels[i] if labels else f"{prov.get('model', Path(path).parent.name)}"
-        curves.append((label, ours))
-        if published and pub:
+        curves.append((name, ours))
+        if published and pub and datasets[0] in published_datasets():
             ref = next(t for t in data["tables"] if t["metric"] == metric)["published_label"]
-            name = f"{ref or 'published'} (paper)"
-            if name not in dashed:
-                curves.append((name, pub))
-                dashed.append(name)
+            paper = f"{ref or 'published'} (paper)"
+            if paper not in dashed:
+                curves.append((paper, pub))
+                dashed.append(paper)
     unit = "/".join(sorted(units))
-    datasets = sorted({read_results(p).get("provenance", {}).get("dataset", "?") for p in paths})
     fig = error_vs_horizon(
         curves,
         title=f"{action} on {', '.join(datasets)}",
@@ -111,13 +134,83 @@ def plot_errors(
     return out
 
 
+def one_dataset(results: list[dict], paths: list) -> list[str]:
+    """The dataset of the results files, which must be one: refuse a mix, naming each file's."""
+    found = [r.get("provenance", {}).get("dataset") or "?" for r in results]
+    known = sorted(set(found) - {"?"})
+    if len(known) > 1:
+        each = ", ".join(f"{Path(p)}: {d}" for p, d in zip(paths, found, strict=True))
+        raise ConfigError(
+            f"the results come from different datasets ({', '.join(known)}), whose errors are "
+            f"not comparable on one plot ({each}). Plot each dataset on its own."
+        )
+    return known or ["?"]
+
+
+def legend_labels(results: list[dict], paths: list) -> list[str]:
+    """One legend entry per results file: "<run name> (<dataset>)", followed, where two would
+    read the same, by what tells them apart (protocol, checkpoint, folder), else a number."""
+    labels = []
+    for data, path in zip(results, paths, strict=True):
+        prov = data.get("provenance", {})
+        run = prov.get("run_name") or prov.get("model") or Path(path).parent.name
+        labels.append(f"{run} ({prov.get('dataset') or '?'})")
+    for extra in (
+        lambda prov, path: prov.get("eval_protocol"),
+        lambda prov, path: Path(prov["checkpoint"]).name if prov.get("checkpoint") else None,
+        lambda prov, path: Path(path).parent.name,
+    ):
+        labels = _tell_apart(labels, results, paths, extra)
+    seen: dict[str, int] = {}
+    unique = []
+    for label in labels:
+        seen[label] = seen.get(label, 0) + 1
+        unique.append(label if labels.count(label) == 1 else f"{label} #{seen[label]}")
+    return unique
+
+
+def _tell_apart(labels: list[str], results: list[dict], paths: list, extra) -> list[str]:
+    """Add `extra(provenance, path)` to the labels that coincide, where it differs among them."""
+    out = list(labels)
+    for label in set(labels):
+        same = [i for i, x in enumerate(labels) if x == label]
+        if len(same) < 2:
+            continue
+        values = [extra(results[i].get("provenance", {}), paths[i]) for i in same]
+        if len(set(values)) > 1:
+            for i, value in zip(same, values, strict=True):
+                out[i] = f"{label}, {value}" if value else label
+    return out
+
+
 @friendly_errors
-def main(argv: list[str] | None = None) -> Path:
+def main(argv: list[str] | None = None) -> Path | None:
     matplotlib.use("Agg")
-    args = OmegaConf.from_dotlist(sys.argv[1:] if argv is None else argv)
-    unknown = set(args) - {"results", "out", "metric", "action", "labels", "published"}
+    argv = sys.argv[1:] if argv is None else argv
+    if any(a in ("-h", "--help", "help") for a in argv):
+        print(usage())
+        return None
+    options = [a for a in argv if a.startswith("-")]
+    if options:
+        raise ConfigError(
+            f"unknown option(s) {options}: arguments are key=value; `python -m src.plot_errors "
+            "--help` lists them"
+        )
+    try:
+        args = OmegaConf.from_dotlist(argv)
+    except Exception as err:  # noqa: BLE001 (OmegaConf's grammar errors)
+        raise ConfigError(
+            f"cannot read the arguments {argv}: {' '.join(str(err).split())}. Write key=value, "
+            "e.g. results=[a/results.json,b/results.json]"
+        ) from None
+    unknown = set(args) - set(OPTIONS)
     if unknown:
-        raise ConfigError(f"unknown argument(s) {sorted(unknown)}; see `python -m src.plot_errors`")
+        close = {k: difflib.get_close_matches(str(k), list(OPTIONS), n=1) for k in unknown}
+        hints = [f"{k} (did you mean {c[0]}?)" if c else str(k) for k, c in sorted(close.items())]
+        raise ConfigError(
+            f"unknown argument(s): {', '.join(hints)}. Arguments: {', '.join(OPTIONS)} "
+            "(`python -m src.plot_errors --help`)"
+        )
     results = args.get("results")
     if results is None:
         raise ConfigError("say which runs to plot: results=[path/to/results.json,...]")

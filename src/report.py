@@ -1,29 +1,43 @@
 """Write the results page (docs/results.md) from finished training runs.
 
+    python -m src.report outputs/reproduce/multiruns/<time> --budget "4000 iterations on a GPU"
     python -m src.report outputs/train/runs/li2018_cmu/<time> outputs/train/runs/... \
-        --out docs/results.md --budget "1000 iterations on 2 CPU cores"
+        --out docs/results.md --readme README.md
 
-Every number on the page comes from evaluating the runs' checkpoints (and the baselines) here,
-on the 8-window protocol of the papers and on 256 windows per action; nothing is typed in. Each
-run's provenance (commit, data checksums and missing files, iterations, wall time, device) is
-printed beside its numbers.
+Arguments are run folders (config.yaml, summary.yaml, checkpoints/) or folders holding them,
+such as a multirun of `python -m src.train -m reproduce=papers`. Runs are grouped by experiment
+(run_name) and dataset; runs of one group that differ only in their seed are aggregated as mean
+± std over the seeds. Each run is evaluated twice: its best checkpoint (lowest validation error;
+validation runs on the test windows, as in both reference implementations, so this selection
+uses test information, protocol section 8) and its last checkpoint (no test information).
+
+Every number on the page comes from evaluating the checkpoints (and the baselines) here, on the
+8-window protocol of the papers and on 256 windows per action; nothing is typed in. Published
+averages are printed twice: recomputed from the paper's per-action values over the actions
+evaluated here (like for like when the data copy lacks some), and as printed in the paper.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import hashlib
 import json
 import logging
 import os
+import re
+import shlex
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
 from src.lit.compose import compose_config
 from src.lit.factory import PROJECT_ROOT, git_commit
+from src.reporting.published import published_beside, published_for
+from src.reporting.tables import SeedTable, Stat, fmt, printed_scope, table_from_dict
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +47,41 @@ PROTOCOLS = {
 }
 BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
+HORIZONS = (80, 160, 320, 400, 560, 1000)
+SELECTIONS = ("best", "last")
+SELECTION_LABELS = {"best": "best (test-selected)", "last": "last (no test info)"}
+
+# Published numbers for experiments whose model config's own entry (Li et al.'s full model)
+# is not theirs: the ablations of Tables 5 and 6 (averages only), and Figure 4's window sizes
+# and runs without the regulariser, for which the paper prints no numbers (None).
+EXPERIMENT_PUBLISHED: dict[str, dict | None] = {
+    "li2018_h36m_no_long_term": {
+        "paper": "li2018",
+        "table": 5,
+        "method": "conv_s2s_without_long_term",
+    },
+    "li2018_h36m_kernel_4x4": {"paper": "li2018", "table": 6, "method": "kernel_4x4"},
+    "li2018_h36m_kernel_7x2": {"paper": "li2018", "table": 6, "method": "kernel_7x2"},
+    "li2018_h36m_C5": None,
+    "li2018_h36m_C10": None,
+    "li2018_h36m_C5_no_adv": None,
+    "li2018_h36m_C10_no_adv": None,
+    "li2018_h36m_C20_no_adv": None,
+}
+
+# Config keys that do not make two runs different experiments: the seed, where files live,
+# the device, and how often files are written.
+IGNORED_KEYS = ("seed", "data.seed", "ckpt_path", "checkpoint_every", "media_every", "task_name")
+IGNORED_PREFIXES = (
+    "paths.",
+    "trainer.",
+    "hydra.",
+    "data.data_dir",
+    "data.archive_dir",
+    "data.archive",
+    "data.num_workers",
+    "data.eval_batch_size",
+)
 
 
 def sha256(path: Path) -> str:
@@ -43,100 +92,490 @@ def sha256(path: Path) -> str:
     return digest.hexdigest()
 
 
+# ---------------------------------------------------------------------------- finding runs
+def is_run(folder: Path) -> bool:
+    """A training run's folder: config.yaml beside checkpoints/ or summary.yaml (a multirun's
+    .hydra/ folders also hold a config.yaml, but neither of the others)."""
+    return (folder / "config.yaml").is_file() and (
+        (folder / "checkpoints").is_dir() or (folder / "summary.yaml").is_file()
+    )
+
+
+def _natural(path: Path) -> list:
+    """Sort key ordering `2_x` before `10_x` (a multirun's job numbers)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+
+
+def discover_runs(paths: list[Path]) -> list[Path]:
+    """The run folders given, or found under the folders given, in sweep order; each once."""
+    runs: list[Path] = []
+    for path in paths:
+        path = path.resolve()
+        if not path.exists():
+            raise SystemExit(f"error: {path} does not exist")
+        if is_run(path):
+            found = [path]
+        else:
+            found = sorted(
+                (
+                    p.parent
+                    for p in path.rglob("config.yaml")
+                    if ".hydra" not in p.parts and is_run(p.parent)
+                ),
+                key=_natural,
+            )
+            if not found:
+                raise SystemExit(
+                    f"error: no training run under {path}: a run folder holds config.yaml and "
+                    "checkpoints/ (is the run finished, and is this its folder?)"
+                )
+        runs += [r for r in found if r not in runs]
+    return runs
+
+
+def _load_yaml(path: Path) -> dict | None:
+    return yaml.safe_load(path.read_text()) if path.is_file() else None
+
+
+def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
+    """({"best": path, "last": path}, notes) for a run folder.
+
+    best is summary.yaml's best_checkpoint: the lowest validation error of the whole run,
+    resumes included (it may lie in the folder of the run before a resume). When the run has
+    no summary (unfinished or killed) or that file is gone, the run's own best-*.ckpt (the
+    newest) stands in, and the notes say so. last is checkpoints/last.ckpt, the final iteration.
+    """
+    folder = run / "checkpoints"
+    notes: list[str] = []
+    summary = _load_yaml(run / "summary.yaml") or {}
+    last = folder / "last.ckpt"
+    best = None
+    recorded = summary.get("best_checkpoint")
+    if recorded:
+        recorded = Path(recorded)
+        # As written; relative to the project; or this folder's file of that name (a run folder
+        # that was moved or copied).
+        for candidate in (recorded, PROJECT_ROOT / recorded, folder / recorded.name):
+            if candidate.is_file():
+                best = candidate
+                break
+        else:
+            notes.append(f"best checkpoint {recorded} of summary.yaml not found")
+    elif not summary:
+        notes.append("no summary.yaml (run unfinished or killed?)")
+    if best is None:
+        local = sorted(folder.glob("best-*.ckpt"), key=lambda p: p.stat().st_mtime)
+        if local:
+            best = local[-1]
+            notes.append(f"best taken as this folder's {best.name}")
+    if not last.is_file():
+        last = None
+    if best is None and last is None:
+        raise SystemExit(f"error: {run} has no checkpoints (is it a finished training run?)")
+    if best is None:
+        notes.append("no best checkpoint: best is last.ckpt")
+    if last is None:
+        notes.append("no last.ckpt: last is the best checkpoint")
+    return {"best": best or last, "last": last or best}, notes
+
+
 def find_checkpoint(run: Path) -> Path:
-    best = sorted((run / "checkpoints").glob("best-*.ckpt"))
-    if best:
-        return best[-1]
-    last = run / "checkpoints" / "last.ckpt"
-    if last.exists():
-        return last
-    raise SystemExit(f"error: {run} has no checkpoints/ (is it a finished training run?)")
+    """The run's best checkpoint (see find_checkpoints)."""
+    return find_checkpoints(run)[0]["best"]
 
 
+def checkpoint_iteration(path: Path) -> int | None:
+    from src.lit.checkpoints import read_checkpoint
+
+    iteration = read_checkpoint(path)["state_dict"].get("iteration")
+    return None if iteration is None else int(iteration)
+
+
+# ---------------------------------------------------------------------------- grouping
+def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
+    out: dict[str, str] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{name}."))
+        else:
+            out[name] = json.dumps(value)
+    return out
+
+
+def identity(config: dict) -> dict[str, str]:
+    """What makes a run the experiment it is: its config less seed, paths, device, logging."""
+    return {
+        k: v
+        for k, v in _flatten(config).items()
+        if k not in IGNORED_KEYS and not k.startswith(IGNORED_PREFIXES)
+    }
+
+
+@dataclass
+class Group:
+    """Runs of one experiment on one dataset that differ only in their seed."""
+
+    label: str
+    run_name: str
+    dataset: str
+    runs: list[dict] = field(default_factory=list)
+
+
+def group_runs(runs: list[dict]) -> list[Group]:
+    """Group run records ({"config": ..., ...}) by run_name, dataset and configuration, in order
+    of first appearance. Runs sharing a run_name but differing in another setting (a budget, a
+    switch) are separate groups, labelled with the settings that tell them apart."""
+    by_key: dict[tuple, list[dict]] = {}
+    for run in runs:
+        config = run["config"]
+        ident = identity(config)
+        key = (config.get("run_name"), config["data"]["name"], tuple(sorted(ident.items())))
+        by_key.setdefault(key, []).append(run)
+    groups = []
+    for (run_name, dataset, ident), members in by_key.items():
+        siblings = [dict(k[2]) for k in by_key if k[:2] == (run_name, dataset)]
+        label = str(run_name)
+        if len(siblings) > 1:
+            mine = dict(ident)
+            keys = sorted(
+                k
+                for k in {k for s in siblings for k in s}
+                if len({s.get(k, "null") for s in siblings}) > 1
+            )
+            label += " (" + ", ".join(f"{k}={json.loads(mine.get(k, 'null'))}" for k in keys) + ")"
+        groups.append(Group(label, str(run_name), str(dataset), members))
+    return groups
+
+
+# ---------------------------------------------------------------------------- evaluation
 def evaluate(overrides: list[str], out_dir: Path) -> dict:
     from src.eval import evaluate as run_eval
 
     cfg = compose_config("eval", overrides, out_dir)
-    return run_eval(cfg)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    # eval prints its tables; they are kept beside its results instead of on the console.
+    with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
+        return run_eval(cfg)
 
 
-def average_row(table: dict) -> dict[str, float]:
-    return (table.get("average") or {}).get("values", {})
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.=-]+", "_", name)
 
 
-def fmt(value: float | None, decimals: int) -> str:
-    return "-" if value is None else f"{value:.{decimals}f}"
+def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
+    """Evaluate the run's best and last checkpoints on each protocol, into run["results"]."""
+    run["results"] = {}
+    checkpoints, iterations = run["checkpoints"], run["iterations_of"]
+    same = checkpoints["last"] == checkpoints["best"] or (
+        iterations["best"] is not None and iterations["best"] == iterations["last"]
+    )
+    for selection in SELECTIONS:
+        if selection == "last" and same:
+            # The last checkpoint is the best one (its error was lowest at the end).
+            run["results"]["last"] = run["results"]["best"]
+            run["notes"].append("best = last (lowest error at the final validation)")
+            continue
+        run["results"][selection] = {}
+        for protocol in protocols:
+            print(f"evaluating {run['path']} ({selection}, {protocol})", flush=True)
+            name = f"{index:03d}_{_safe(run['config'].get('run_name', 'run'))}_seed{run['seed']}"
+            run["results"][selection][protocol] = evaluate(
+                [f"ckpt_path='{run['checkpoints'][selection]}'", f"protocol={protocol}"],
+                work / name / f"{selection}_{protocol}",
+            )
 
 
-def summary_table(entries: list[dict], metric: str, protocol: str) -> str:
-    horizons = ["80", "160", "320", "400", "560", "1000"]
+def load_run(path: Path) -> dict:
+    config = _load_yaml(path / "config.yaml")
+    # Runs of older versions may lack run_name: their folder is runs/<name>/<time>.
+    config.setdefault("run_name", path.parent.name)
+    summary = _load_yaml(path / "summary.yaml") or {}
+    checkpoints, notes = find_checkpoints(path)
+    iterations_of = {s: checkpoint_iteration(p) for s, p in checkpoints.items()}
+    shown = path.relative_to(PROJECT_ROOT) if path.is_relative_to(PROJECT_ROOT) else path
+    return {
+        "path": str(shown),
+        "config": config,
+        "seed": config.get("seed"),
+        "checkpoints": checkpoints,
+        "iterations_of": iterations_of,
+        "iterations": summary.get("iterations", iterations_of["last"]),
+        "notes": notes,
+        **{k: summary.get(k) for k in ("wall_time_s", "commit", "device")},
+    }
+
+
+# ---------------------------------------------------------------------------- the page
+def _table_index(metric: str) -> int:
+    return 0 if metric == "euler" else 1
+
+
+def run_published(group: Group, result: dict) -> tuple[dict | None, str | None]:
+    """Published values for a group's tables: the report's own entry for the experiments of
+    EXPERIMENT_PUBLISHED, else those the evaluation printed (the checkpoint's model config),
+    and only on the dataset they were published for."""
+    if group.run_name in EXPERIMENT_PUBLISHED:
+        return published_for(EXPERIMENT_PUBLISHED[group.run_name], group.dataset)
+    table = result["tables"][0]
+    return _published_of(table, group.dataset), table.get("published_label")
+
+
+def _published_of(table: dict, dataset: str) -> dict[str, dict[int, float]] | None:
+    """A stored result table's published values (ms keys back to int), if on their dataset."""
+    published = published_beside(table, dataset)
+    if not published:
+        return None
+    return {a: {int(ms): float(v) for ms, v in row.items()} for a, row in published.items()}
+
+
+def seed_table(group: Group, selection: str, protocol: str, metric: str) -> SeedTable:
+    results = [run["results"][selection][protocol] for run in group.runs]
+    published, label = run_published(group, results[0]) if metric == "euler" else (None, None)
+    tables = [table_from_dict(r["tables"][_table_index(metric)]) for r in results]
+    title = (
+        f"{group.label} on {group.dataset}, {SELECTION_LABELS[selection]} checkpoint, "
+        f"{PROTOCOLS.get(protocol, protocol)}"
+    )
+    return SeedTable(title, tables, published, label)
+
+
+def _range(values: list[int | None]) -> str:
+    known = sorted({v for v in values if v is not None})
+    if not known:
+        return "-"
+    if len(known) == 1:
+        return f"{known[0]:,}"
+    return f"{known[0]:,}–{known[-1]:,}"
+
+
+def _stat_cells(average: dict[int, Stat] | None, decimals: int) -> list[str]:
+    average = average or {}
+    return [average[ms].format(decimals) if ms in average else "-" for ms in HORIZONS]
+
+
+def summary_table(groups: list[Group], baselines: list[dict], metric: str, protocol: str) -> str:
     decimals = 2 if metric == "euler" else 1
     lines = [
-        "| run | dataset | iterations | " + " | ".join(f"{h} ms" for h in horizons) + " |",
-        "|---|---|---:|" + "---:|" * len(horizons),
+        "| experiment | dataset | checkpoint | seeds | iterations | "
+        + " | ".join(f"{h} ms" for h in HORIZONS)
+        + " |",
+        "|---|---|---|---:|---:|" + "---:|" * len(HORIZONS),
     ]
-    for entry in entries:
-        table = entry["results"][protocol]["tables"][0 if metric == "euler" else 1]
-        avg = average_row(table)
-        cells = [fmt(avg.get(h), decimals) for h in horizons]
-        lines.append(
-            f"| {entry['label']} | {entry['dataset']} | {entry.get('iterations', '-')} | "
-            + " | ".join(cells)
-            + " |"
-        )
-        published = table.get("published") or {}
-        if metric == "euler" and published.get("average"):
-            pub = published["average"]
+    for group in groups:
+        table = None
+        for selection in SELECTIONS:
+            table = seed_table(group, selection, protocol, metric)
+            if selection == "best":
+                best = _range([r["iterations_of"]["best"] for r in group.runs])
+                iterations = f"{best} of {_range([r['iterations'] for r in group.runs])}"
+            else:
+                iterations = _range([r["iterations"] for r in group.runs])
             lines.append(
-                f"| {entry['label']}: published ({table['published_label']}) | "
-                f"{entry['dataset']} | paper | "
-                + " | ".join(fmt(pub.get(h), 2) for h in horizons)
+                f"| {group.label} | {group.dataset} | {SELECTION_LABELS[selection]} | "
+                f"{table.n} | {iterations} | "
+                + " | ".join(_stat_cells(table.average(), decimals))
                 + " |"
             )
+        if metric == "euler" and table is not None and table.published is not None:
+            lines += _published_rows(group.label, group.dataset, table)
+    for entry in baselines:
+        result = entry["results"][protocol]
+        table_dict = result["tables"][_table_index(metric)]
+        published = _published_of(table_dict, entry["dataset"]) if metric == "euler" else None
+        table = SeedTable(
+            entry["label"],
+            [table_from_dict(table_dict)],
+            published,
+            table_dict.get("published_label"),
+        )
+        lines.append(
+            f"| {entry['label']} | {entry['dataset']} | - | - | - | "
+            + " | ".join(_stat_cells(table.average(), decimals))
+            + " |"
+        )
+        if table.published is not None:
+            lines += _published_rows(entry["label"], entry["dataset"], table)
     return "\n".join(lines)
 
 
-def provenance_table(entries: list[dict]) -> str:
+def _published_rows(label: str, dataset: str, table: SeedTable) -> list[str]:
+    rows = []
+    same, printed = table.published_same_set(), table.published_as_printed()
+    name = table.published_label or "published"
+    for text, values in (
+        (f"published ({name}), same {len(table.evaluated)} actions", same),
+        (f"published ({name}), as printed ({printed_scope(table.published)})", printed),
+    ):
+        if values:
+            rows.append(
+                f"| {label}: {text} | {dataset} | paper | - | paper | "
+                + " | ".join(fmt(values.get(ms), 2) for ms in HORIZONS)
+                + " |"
+            )
+    return rows
+
+
+def gap_line(group: Group, selection: str, protocol: str) -> str | None:
+    """Ours minus the published same-set average, per horizon (Euler, mean over seeds)."""
+    table = seed_table(group, selection, protocol, "euler")
+    same, average = table.published_same_set(), table.average() or {}
+    cells = [f"{ms} ms {average[ms].mean - same[ms]:+.2f}" for ms in HORIZONS if ms in same]
+    if not cells:
+        return None
+    return (
+        f"- {SELECTION_LABELS[selection]} minus published ({table.published_label}) over the same "
+        f"{len(table.evaluated)} actions: " + ", ".join(cells)
+    )
+
+
+def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
     lines = [
-        "| run | commit | iterations | wall time | device | data archive (sha256) "
-        "| missing files |",
-        "|---|---|---:|---:|---|---|---|",
+        "| experiment | seed | run folder | commit | iterations | best at | wall time | device "
+        "| data archive (sha256) | missing files | notes |",
+        "|---|---:|---|---|---:|---:|---:|---|---|---|---|",
     ]
-    for e in entries:
+    for group in groups:
+        for r in group.runs:
+            missing = r.get("missing_files") or []
+            wall = r.get("wall_time_s")
+            lines.append(
+                f"| {group.label} | {r['seed']} | `{r['path']}` | {r.get('commit') or '-'} | "
+                f"{_range([r['iterations']])} | {_range([r['iterations_of']['best']])} | "
+                f"{'-' if wall is None else f'{wall / 60:.1f} min'} | {r.get('device') or '-'} | "
+                f"{r.get('archive_sha256', '-')} | "
+                f"{f'{len(missing)} (see below)' if missing else 'none'} | "
+                f"{'; '.join(r['notes']) or '-'} |"
+            )
+    for e in baselines:
         missing = e.get("missing_files") or []
         missing_txt = f"{len(missing)} (see below)" if missing else "none"
-        wall = e.get("wall_time_s")
         lines.append(
-            f"| {e['label']} | {e.get('commit', '-')} | {e.get('iterations', '-')} | "
-            f"{'-' if wall is None else f'{wall / 60:.1f} min'} | {e.get('device', '-')} | "
-            f"{e.get('archive_sha256', '-')} | {missing_txt} |"
+            f"| {e['label']} (baseline) | - | - | {e.get('commit', '-')} | - | - | - | - | "
+            f"{e.get('archive_sha256', '-')} | {missing_txt} | - |"
         )
     return "\n".join(lines)
 
 
-def markdown_of(result: dict) -> str:
-    from src.reporting.tables import ResultTable
+def intro(groups: list[Group], protocols: list[str]) -> list[str]:
+    seeds = "; ".join(
+        f"{g.label} ({g.dataset}): {len(g.runs)} seed{'s' if len(g.runs) != 1 else ''} "
+        f"({', '.join(str(r['seed']) for r in g.runs)})"
+        for g in groups
+    )
+    return [
+        f"**Seeds.** {seeds or 'no training runs'}. Every cell of a trained model is the mean "
+        "± the sample standard deviation (n - 1 denominator) over its seeds, n as listed; a "
+        "cell without ± comes from one seed. The average row's ± is that of the per-seed "
+        "averages.",
+        "",
+        "**Checkpoint selection.** Each run is reported twice. *best (test-selected)*: the "
+        "checkpoint with the lowest average Euler error at a validation during training; the "
+        "validation windows are the test windows (S5 on H3.6M, the test folder on CMU), as in "
+        "both reference implementations and as the papers report (protocol section 8), so this "
+        "selection uses test information and is optimistic. *last (no test info)*: the "
+        "checkpoint of the final iteration, chosen without looking at the test windows. Both are "
+        "evaluated on every protocol below; the selection itself was made on the runs' "
+        "validation protocol (8 windows per action unless a run's config says otherwise).",
+        "",
+        "**Published values.** Beside our average over the evaluated actions stands the "
+        "paper's average recomputed from its per-action values over the same actions ('same N "
+        "actions': like for like when this data copy lacks some test actions), and the average "
+        "as printed in the paper, over all of its actions. Tables 5 and 6 of Li et al. (the "
+        "ablations) print averages only, so they have no same-set value.",
+    ]
 
-    parts = []
-    for t in result["tables"]:
-        values = {a: {int(ms): v for ms, v in row.items()} for a, row in t["values"].items()}
-        published = t.get("published")
-        if published is not None:
-            published = {a: {int(ms): v for ms, v in row.items()} for a, row in published.items()}
-        parts.append(
-            ResultTable(
-                title=t["title"],
-                metric=t["metric"],
-                unit=t["unit"],
-                actions=t["actions"],
-                horizons_ms=t["horizons_ms"],
-                values=values,
-                absent=t["absent"],
-                published=published,
-                published_label=t.get("published_label"),
-            ).to_markdown()
-        )
-    return "\n\n".join(parts)
+
+def build_page(
+    groups: list[Group],
+    baselines: list[dict],
+    protocols: list[str],
+    command: str,
+    budget: str | None,
+) -> str:
+    lines = [
+        "# Results",
+        "",
+        f"Generated by `python -m src.report` on {dt.date.today()} at commit {git_commit()}; "
+        "every number below was computed by that command from the listed runs' checkpoints and "
+        "from the baselines. Do not edit by hand: re-run the command.",
+        "",
+        f"Command: `{command}`",
+        "",
+    ]
+    if budget:
+        lines += [f"**Budget.** {budget}", ""]
+    lines += intro(groups, protocols) + [""]
+    lines += ["## Provenance", "", provenance_table(groups, baselines), ""]
+    everyone = [r for g in groups for r in g.runs] + baselines
+    missing = sorted({m for e in everyone for m in e.get("missing_files") or []})
+    if missing:
+        lines += [
+            f"The data copy lacks {len(missing)} file(s) of the full archives; training used what "
+            "exists (`data.allow_partial=true`) and actions without test files are shown as "
+            "absent: " + ", ".join(f"`{m}`" for m in missing),
+            "",
+        ]
+    for protocol in protocols:
+        lines += [
+            f"## Average over the evaluated actions: {PROTOCOLS.get(protocol, protocol)}",
+            "",
+            "Euler-angle error (radians):",
+            "",
+            summary_table(groups, baselines, "euler", protocol),
+            "",
+            "MPJPE (mm on H3.6M, skeleton units on CMU):",
+            "",
+            summary_table(groups, baselines, "mpjpe", protocol),
+            "",
+        ]
+    lines += ["## Per-experiment tables", ""]
+    for group in groups:
+        lines += [f"### {group.label} ({group.dataset})", ""]
+        folders = ", ".join(f"seed {r['seed']}: `{r['path']}`" for r in group.runs)
+        lines += [
+            f"- Runs: {folders}.",
+            "- Best checkpoints at iteration(s) "
+            + ", ".join(_range([r["iterations_of"]["best"]]) for r in group.runs)
+            + f" of {_range([r['iterations'] for r in group.runs])}.",
+        ]
+        for selection in SELECTIONS:
+            gap = gap_line(group, selection, protocols[0])
+            if gap:
+                lines.append(gap + f" ({PROTOCOLS.get(protocols[0], protocols[0])}).")
+        lines.append("")
+        for protocol in protocols:
+            for metric in ("euler", "mpjpe"):
+                for selection in SELECTIONS:
+                    lines += [seed_table(group, selection, protocol, metric).to_markdown(), ""]
+    for entry in baselines:
+        for protocol in protocols:
+            lines += [
+                f"### {entry['label']} ({entry['dataset']}), {PROTOCOLS.get(protocol, protocol)}",
+                "",
+            ]
+            for table_dict in entry["results"][protocol]["tables"]:
+                published = _published_of(table_dict, entry["dataset"])
+                table = table_from_dict(table_dict, published, table_dict.get("published_label"))
+                lines += [table.to_markdown(), ""]
+    return "\n".join(lines)
+
+
+def readme_block(
+    groups: list[Group], baselines: list[dict], protocol: str, budget: str | None
+) -> str:
+    return "\n".join(
+        [
+            f"Average Euler-angle error over the evaluated actions, "
+            f"{PROTOCOLS.get(protocol, protocol)}; generated on {dt.date.today()} at commit "
+            f"{git_commit()}. Trained models: mean ± std over seeds (n in the table), with the "
+            "best checkpoint (selected on the test windows, as the papers did) and the last "
+            "(no test information); published averages recomputed over the same actions and as "
+            "printed." + (f" Budget: {budget}" if budget else ""),
+            "",
+            summary_table(groups, baselines, "euler", protocol),
+        ]
+    )
 
 
 def replace_block(path: Path, name: str, text: str) -> None:
@@ -152,14 +591,19 @@ def replace_block(path: Path, name: str, text: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("runs", nargs="*", type=Path, help="training run folders")
+    parser.add_argument(
+        "runs",
+        nargs="*",
+        type=Path,
+        help="run folders, or folders holding them (a multirun folder)",
+    )
     parser.add_argument("--out", type=Path, default=PROJECT_ROOT / "docs" / "results.md")
     parser.add_argument("--budget", default=None, help="one sentence stating the budget")
     parser.add_argument(
         "--datasets",
         nargs="*",
         default=None,
-        help="datasets for the baselines (default: those of the runs)",
+        help="datasets for the baselines (default: those of the runs; none: no baselines)",
     )
     parser.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
     parser.add_argument(
@@ -176,42 +620,27 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
+    if not args.protocols:
+        raise SystemExit("error: give at least one protocol")
 
     stamp = dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    work = args.work_dir or PROJECT_ROOT / "outputs" / "report" / stamp
+    work = (args.work_dir or PROJECT_ROOT / "outputs" / "report" / stamp).resolve()
     archives = Path(os.environ["MOTION_ARCHIVES"]) if os.environ.get("MOTION_ARCHIVES") else None
 
-    entries: list[dict] = []
-    datasets: list[str] = []
-    for run in args.runs:
-        run = run.resolve()
-        summary = yaml.safe_load((run / "summary.yaml").read_text())
-        config = yaml.safe_load((run / "config.yaml").read_text())
-        dataset = config["data"]["name"]
-        datasets.append(dataset)
-        ckpt = find_checkpoint(run)
-        entry = {
-            "label": config.get("run_name", run.parent.name),
-            "dataset": dataset,
-            "run": str(run.relative_to(PROJECT_ROOT) if run.is_relative_to(PROJECT_ROOT) else run),
-            "checkpoint": ckpt.name,
-            **{k: summary.get(k) for k in ("iterations", "wall_time_s", "commit", "device")},
-            "results": {},
-        }
-        for protocol in args.protocols:
-            result = evaluate(
-                [f"ckpt_path='{ckpt}'", f"protocol={protocol}"],
-                work / f"{entry['label']}_{protocol}",
-            )
-            entry["results"][protocol] = result
-            entry["missing_files"] = result["provenance"]["missing_files"]
-        entries.append(entry)
+    runs = [load_run(path) for path in discover_runs(args.runs)]
+    for index, run in enumerate(runs):
+        evaluate_run(run, index, args.protocols, work)
+        first = run["results"]["best"][args.protocols[0]]
+        run["missing_files"] = first["provenance"]["missing_files"]
+    groups = group_runs(runs)
 
-    baseline_entries: list[dict] = []
-    for dataset in args.datasets or sorted(set(datasets)):
+    datasets = sorted({g.dataset for g in groups})
+    baselines: list[dict] = []
+    for dataset in datasets if args.datasets is None else args.datasets:
         for model in BASELINES:
-            entry = {"label": model, "dataset": dataset, "iterations": "-", "results": {}}
+            entry = {"label": model, "dataset": dataset, "commit": git_commit(), "results": {}}
             for protocol in args.protocols:
+                print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
                 result = evaluate(
                     [
                         f"model={model}",
@@ -219,73 +648,38 @@ def main(argv: list[str] | None = None) -> int:
                         "data.allow_partial=true",
                         f"protocol={protocol}",
                     ],
-                    work / f"{model}_{dataset}_{protocol}",
+                    work / "baselines" / f"{model}_{dataset}_{protocol}",
                 )
                 entry["results"][protocol] = result
                 entry["missing_files"] = result["provenance"]["missing_files"]
-            baseline_entries.append(entry)
+            baselines.append(entry)
 
-    for entry in entries + baseline_entries:
-        name = ARCHIVES.get(entry["dataset"])
+    hashes: dict[str, str] = {}
+    for entry in [r for g in groups for r in g.runs] + baselines:
+        dataset = entry["dataset"] if "dataset" in entry else entry["config"]["data"]["name"]
+        name = ARCHIVES.get(dataset)
         if archives is not None and name and (archives / name).exists():
-            entry["archive_sha256"] = f"{name} {sha256(archives / name)[:16]}…"
+            if name not in hashes:
+                hashes[name] = f"{name} {sha256(archives / name)[:16]}…"
+            entry["archive_sha256"] = hashes[name]
 
-    lines = [
-        "# Results",
-        "",
-        f"Generated by `python -m src.report` on {dt.date.today()} at commit {git_commit()}; "
-        "every number below was computed by that command from the listed runs' checkpoints and "
-        "from the baselines. Do not edit by hand: re-run the command.",
-        "",
-        f"Command: `python -m src.report {' '.join(sys.argv[1:] if argv is None else argv)}`",
-        "",
-    ]
-    if args.budget:
-        lines += [f"**Budget.** {args.budget}", ""]
-    lines += ["## Provenance", "", provenance_table(entries + baseline_entries), ""]
-    missing = sorted({m for e in entries + baseline_entries for m in e.get("missing_files", [])})
-    if missing:
-        lines += [
-            f"The data copy lacks {len(missing)} file(s) of the full archives; training used what "
-            "exists (`data.allow_partial=true`) and actions without test files are shown as "
-            "absent: " + ", ".join(f"`{m}`" for m in missing),
-            "",
-        ]
-    for protocol in args.protocols:
-        lines += [
-            f"## Average over the evaluated actions: {PROTOCOLS.get(protocol, protocol)}",
-            "",
-            "Euler-angle error (radians):",
-            "",
-            summary_table(entries + baseline_entries, "euler", protocol),
-            "",
-            "MPJPE (mm on H3.6M, skeleton units on CMU):",
-            "",
-            summary_table(entries + baseline_entries, "mpjpe", protocol),
-            "",
-        ]
-    lines += ["## Per-action tables", ""]
-    for entry in entries + baseline_entries:
-        for protocol in args.protocols:
-            lines += [
-                f"### {entry['label']} ({entry['dataset']}), {PROTOCOLS.get(protocol, protocol)}",
-                "",
-                markdown_of(entry["results"][protocol]),
-                "",
-            ]
+    command = shlex.join(["python", "-m", "src.report", *(sys.argv[1:] if argv is None else argv)])
+    page = build_page(groups, baselines, args.protocols, command, args.budget)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text("\n".join(lines))
+    args.out.write_text(page)
     if args.readme is not None:
-        summary = [
-            f"Average Euler-angle error over the evaluated actions, "
-            f"{PROTOCOLS.get(args.protocols[0], args.protocols[0])}; generated on "
-            f"{dt.date.today()} at commit {git_commit()}."
-            + (f" Budget: {args.budget}" if args.budget else ""),
-            "",
-            summary_table(entries + baseline_entries, "euler", args.protocols[0]),
-        ]
-        replace_block(args.readme, "results", "\n".join(summary))
-    (work / "report.json").write_text(json.dumps(entries + baseline_entries, indent=1, default=str))
+        replace_block(
+            args.readme, "results", readme_block(groups, baselines, args.protocols[0], args.budget)
+        )
+    work.mkdir(parents=True, exist_ok=True)
+    raw = {
+        "groups": [
+            {"label": g.label, "run_name": g.run_name, "dataset": g.dataset, "runs": g.runs}
+            for g in groups
+        ],
+        "baselines": baselines,
+    }
+    (work / "report.json").write_text(json.dumps(raw, indent=1, default=str))
     print(f"wrote {args.out} (raw results in {work})")
     return 0
 

@@ -3,7 +3,8 @@
     python -m src.train model=conv_s2s data=cmu
     python -m src.train experiment=li2018_h36m
     python -m src.train -m model=conv_s2s,gru_s2s data=cmu      (a sweep)
-    python -m src.train ckpt_path=outputs/train/runs/.../checkpoints/last.ckpt   (resume)
+    python -m src.train resume=outputs/train/runs/<run>/<time>   (resume: the run's own settings)
+    python -m src.train ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
 
 Returns the best average validation error (Euler, radians), which Hydra's sweepers minimise.
 """
@@ -45,7 +46,9 @@ from src.lit.factory import (
 )
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
-from src.lit.validation import friendly_errors, validate_train_config
+from src.lit.progress import ProgressLog
+from src.lit.runs import check_schedule, describe, discard_unstarted_run, restore_run
+from src.lit.validation import USER_ERRORS, hydra_entry, validate_train_config
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
@@ -76,8 +79,21 @@ def _check_unused(folder: Path) -> None:
         )
 
 
+def _command_line() -> tuple[list[str], dict] | None:
+    """The overrides and config-group options the config was composed with, if by Hydra."""
+    if not HydraConfig.initialized():
+        return None
+    hydra_cfg = HydraConfig.get()
+    return list(hydra_cfg.overrides.task), OmegaConf.to_container(hydra_cfg.runtime.choices)
+
+
 def train(cfg: DictConfig) -> float:
+    command_line = _command_line()
+    resume = None
+    if command_line is not None:  # a resume continues the run's own config
+        cfg, resume = restore_run(cfg, *command_line)
     validate_train_config(cfg)
+    check_schedule(cfg)
     out_dir = Path(cfg.paths.output_dir)
     _check_writable(out_dir)
     if rank_zero_only.rank == 0:  # DDP's other ranks start later, in the same folder
@@ -95,6 +111,15 @@ def train(cfg: DictConfig) -> float:
         require_resumable(ckpt, cfg.ckpt_path)
         check_compatible(ckpt, cfg, cfg.ckpt_path)
         check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
+        done = int(ckpt["state_dict"]["iteration"])
+        if done >= cfg.iterations:
+            raise ConfigError(
+                f"{cfg.ckpt_path} is at iteration {done} and the run is {cfg.iterations} "
+                "iterations long: nothing to resume. To train it longer, add iterations=N "
+                f"(N > {done}, a multiple of val_every={cfg.val_every})."
+            )
+        if resume is not None:
+            log.info("%s", describe(resume, done))
 
     run_info = {
         "config": {
@@ -109,25 +134,31 @@ def train(cfg: DictConfig) -> float:
     if ckpt is not None:
         dm.resume_iteration = int(ckpt["state_dict"]["iteration"])
 
+    # Under fast_dev_run Lightning swaps this logger for a dummy; only touching
+    # logger.experiment (the error-curve layout below) would still write an events file.
+    fast_dev_run = bool(cfg.trainer.get("fast_dev_run"))
     logger = TensorBoardLogger(
         save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False
     )
+    progress_every = cfg.get("progress_every_s")
     checkpoints = BestCheckpoint(out_dir / "checkpoints")
     last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path
     trainer: L.Trainer = hydra.utils.instantiate(
         cfg.trainer,
-        max_epochs=math.ceil(cfg.iterations / cfg.val_every),
+        max_epochs=cfg.iterations // cfg.val_every,  # exact: check_schedule
         logger=logger,
         callbacks=[
             checkpoints,
             last,
             LearningRateMonitor("step"),
             *FrameStripLogger.from_config(cfg),
+            *([] if progress_every is None else [ProgressLog(cfg.iterations, progress_every)]),
         ],
     )
-    if trainer.logger is not None and trainer.is_global_zero:
-        add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
+    if trainer.is_global_zero:
+        if not fast_dev_run:
+            add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()
@@ -158,6 +189,7 @@ def train(cfg: DictConfig) -> float:
         }
         OmegaConf.save(OmegaConf.create(summary), out_dir / "summary.yaml")
         log.info("run folder: %s", out_dir)
+        log.info("last checkpoint: %s", last.path)
         log.info("best average validation Euler error: %.4f", score)
     return score
 
@@ -168,11 +200,20 @@ def _device_name(trainer: L.Trainer) -> str:
     return f"cpu ({os.cpu_count()} cores, {torch.get_num_threads()} threads)"
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
-@friendly_errors
+def _train_or_discard(cfg: DictConfig) -> float:
+    try:
+        return train(cfg)
+    except USER_ERRORS:
+        # Refused before training started: the folder claimed for it goes, so nothing of a
+        # refused run is left behind; a run that failed later (config.yaml written) keeps it.
+        discard_unstarted_run(HydraConfig.get().runtime.output_dir)
+        raise
+
+
+@hydra_entry("train")
 def main(cfg: DictConfig) -> float:
     try:
-        score = train(cfg)
+        score = _train_or_discard(cfg)
     except TrainingInterrupted as err:
         log.warning("%s", err)
         raise SystemExit(128 + err.signum) from None

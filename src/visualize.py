@@ -22,17 +22,17 @@ import logging
 import shutil
 from pathlib import Path
 
-import hydra
 import matplotlib
 import numpy as np
 import torch
 from omegaconf import DictConfig
 
 from src.data.base import MotionDataModule
+from src.data.synthetic import SyntheticDataModule
 from src.eval import load_for_eval
 from src.lit.factory import ConfigError, register_resolvers
 from src.lit.predictor import MotionPredictor
-from src.lit.validation import friendly_errors
+from src.lit.validation import hydra_entry, validate_eval_config
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.models.baselines import ZeroVelocity
 from src.reporting.plots import PoseRow, animate, frame_strip
@@ -87,6 +87,12 @@ def positions(frames: torch.Tensor, skeleton: Skeleton) -> np.ndarray:
     return yz_swap(xyz).numpy()
 
 
+def data_name(dm: MotionDataModule) -> str:
+    """The dataset's own name for titles: "synthetic" for the synthetic data, which reads as
+    H3.6M (its `dataset_name`, which picks the skeleton and the protocol) but is not."""
+    return "synthetic" if isinstance(dm, SyntheticDataModule) else dm.dataset_name
+
+
 def window_rows(
     dm: MotionDataModule,
     module: MotionPredictor,
@@ -95,10 +101,12 @@ def window_rows(
     baseline: bool = True,
     observed_shown: int = 25,
     name: str | None = None,
+    dataset: str | None = None,
 ) -> tuple[list[PoseRow], int, str]:
     """(rows, n_observed, description) for `frame_strip` / `animate`: prediction, ground
     truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
-    row is the last `observed_shown` observed frames followed by the future."""
+    row is the last `observed_shown` observed frames followed by the future. The description
+    names `dataset` (default: the data's own name, see `data_name`)."""
     index = select_window(dm, action, window)
     frames = predict_window(dm, module, index)
     obs = frames["observed"][-observed_shown:]
@@ -117,7 +125,8 @@ def window_rows(
         still = obs[-1:].expand(T, -1)
         rows.append(PoseRow("zero-velocity", positions(torch.cat([obs, still]), skeleton), "blue"))
     w = dm.eval_windows[index]
-    what = f"{name} on {dm.dataset_name}: {action}, window {window} ({w.sequence}, start {w.start})"
+    dataset = dataset or data_name(dm)
+    what = f"{name} on {dataset}: {action}, window {window} ({w.sequence}, start {w.start})"
     return rows, len(obs), what
 
 
@@ -139,7 +148,8 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
         raise ConfigError(f"format={cfg.format!r}: choose one of {', '.join(FORMATS)}")
     if cfg.observed_shown < 1:
         raise ConfigError(f"observed_shown={cfg.observed_shown} must be >= 1 frame")
-    dm, module, model_cfg, _ = load_for_eval(cfg)
+    validate_eval_config(cfg)
+    dm, module, model_cfg, dataset = load_for_eval(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)
     rows, n_obs, what = window_rows(
         dm,
@@ -149,6 +159,7 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
         bool(cfg.baseline),
         observed_shown,
         name=model_cfg["name"],
+        dataset=dataset,
     )
     skeleton = Skeleton.load(module.dataset)
     out_dir = Path(cfg.paths.output_dir)
@@ -168,8 +179,7 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
     return {"animation": anim_path, "strip": strip_path}
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="visualize")
-@friendly_errors
+@hydra_entry("visualize")
 def main(cfg: DictConfig) -> None:
     visualize(cfg)
 

@@ -132,12 +132,21 @@ def test_non_finite_training_stops_and_keeps_last_good_checkpoint(
         _train(out, h36m_dir, iterations=4, val_every=2)
     # The message carries the last finite losses so the user sees the trend before the blow-up.
     assert "Last finite losses" in str(err.value) and "train/loss_g" in str(err.value)
+    # The message names the file to resume from (issue: it used to point at a folder).
+    assert f"The last good checkpoint is {out / 'checkpoints' / 'last.ckpt'}" in str(err.value)
     kept = _last(out)
     assert int(kept["state_dict"]["iteration"]) == 2  # epoch 0's, not overwritten
     assert all(
         torch.isfinite(t).all() for t in kept["state_dict"].values() if t.is_floating_point()
     )
     assert not (out / "summary.yaml").exists()
+
+
+def test_divergence_before_any_checkpoint_says_there_is_none(monkeypatch, h36m_dir, tmp_path):
+    monkeypatch.setattr(MotionPredictor, "training_step", _poison_data_at(0))
+    with pytest.raises(NonFiniteLossError, match="No checkpoint was written before this point"):
+        _train(tmp_path / "run", h36m_dir, iterations=4, val_every=2)
+    assert not (tmp_path / "run" / "checkpoints" / "last.ckpt").exists()
 
 
 def test_project_errors_become_one_line_and_exit_code_2(capsys):

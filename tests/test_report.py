@@ -1,10 +1,27 @@
-"""The results page is produced by the report command from runs, never typed in."""
+"""The results page is produced by the report command from runs, never typed in: finding runs
+and their checkpoints, grouping seeds, best versus last, published averages over the same
+actions. The fast tests build the page from stored evaluation results; the slow ones train."""
 
 import json
+import re
+from pathlib import Path
 
 import pytest
+import yaml
 
-from src.report import main, replace_block
+from src.report import (
+    build_page,
+    discover_runs,
+    find_checkpoint,
+    find_checkpoints,
+    group_runs,
+    main,
+    readme_block,
+    replace_block,
+    summary_table,
+)
+from src.reporting.published import published_for, published_table
+from src.reporting.tables import AVERAGE, ResultTable, same_set_average
 
 
 def test_replace_block_rewrites_only_between_markers(tmp_path):
@@ -52,7 +69,234 @@ def test_report_from_a_short_run(train_cfg, tmp_path, synthetic_data_dir, monkey
     for name in ("gru_s2s_synthetic", "zero_velocity", "running_avg_2", "running_avg_4"):
         assert f"| {name} |" in page
     raw = json.loads((tmp_path / "work" / "report.json").read_text())
-    run_avg = raw[0]["results"]["srnn"]["tables"][0]["average"]["values"]
+    (group,) = raw["groups"]
+    run_avg = group["runs"][0]["results"]["best"]["srnn"]["tables"][0]["average"]["values"]
     # The page shows exactly what the evaluation computed.
     assert f"{run_avg['80']:.2f}" in page
     assert "| gru_s2s_synthetic |" in readme.read_text()
+
+
+# --- finding runs and their checkpoints -----------------------------------------------------
+
+
+def make_run(folder: Path, *, summary: dict | None = None, files=("last.ckpt",), **config):
+    """A run folder as src.train leaves it (the checkpoint files are empty placeholders)."""
+    (folder / "checkpoints").mkdir(parents=True)
+    for name in files:
+        (folder / "checkpoints" / name).write_bytes(b"")
+    base = {"run_name": "li2018_h36m", "seed": 1, "data": {"name": "h36m", "seed": 1}}
+    base.update(config)
+    (folder / "config.yaml").write_text(yaml.safe_dump(base))
+    if summary is not None:
+        (folder / "summary.yaml").write_text(yaml.safe_dump(summary))
+    return folder
+
+
+def test_best_checkpoint_is_the_one_summary_yaml_names(tmp_path):
+    files = ("best-epoch003.ckpt", "best-epoch007.ckpt", "last.ckpt")
+    run = tmp_path / "run"
+    summary = {"best_checkpoint": str(run / "checkpoints" / "best-epoch003.ckpt")}
+    make_run(run, summary=summary, files=files)
+    # Not the newest best-*.ckpt (a stale file of a resume), the run's one notion of best.
+    (run / "checkpoints" / "best-epoch007.ckpt").touch()
+    checkpoints, notes = find_checkpoints(run)
+    assert checkpoints == {
+        "best": run / "checkpoints" / "best-epoch003.ckpt",
+        "last": run / "checkpoints" / "last.ckpt",
+    }
+    assert notes == [] and find_checkpoint(run) == checkpoints["best"]
+
+
+def test_best_checkpoint_of_an_earlier_folder_after_a_resume(tmp_path):
+    before = make_run(tmp_path / "before", files=("best-epoch001.ckpt", "last.ckpt"))
+    best = before / "checkpoints" / "best-epoch001.ckpt"
+    after = make_run(tmp_path / "after", summary={"best_checkpoint": str(best)})
+    assert find_checkpoints(after)[0] == {"best": best, "last": after / "checkpoints" / "last.ckpt"}
+
+
+def test_moved_run_folder_finds_its_best_by_name(tmp_path):
+    run = make_run(
+        tmp_path / "copied",
+        summary={"best_checkpoint": "/elsewhere/run/checkpoints/best-epoch002.ckpt"},
+        files=("best-epoch002.ckpt", "last.ckpt"),
+    )
+    checkpoints, notes = find_checkpoints(run)
+    assert checkpoints["best"] == run / "checkpoints" / "best-epoch002.ckpt" and notes == []
+
+
+def test_unfinished_run_falls_back_and_says_so(tmp_path):
+    run = make_run(tmp_path / "a", files=("best-epoch001.ckpt", "last.ckpt"))
+    checkpoints, notes = find_checkpoints(run)
+    assert checkpoints["best"].name == "best-epoch001.ckpt"
+    assert any("no summary.yaml" in n for n in notes)
+    only_last = make_run(tmp_path / "b", summary={"best_checkpoint": ""})
+    checkpoints, notes = find_checkpoints(only_last)
+    assert checkpoints["best"] == checkpoints["last"] and any("best is last" in n for n in notes)
+    with pytest.raises(SystemExit, match="no checkpoints"):
+        find_checkpoints(make_run(tmp_path / "c", files=()))
+
+
+def test_discover_runs_in_a_multirun_and_plain_folders(tmp_path):
+    sweep = tmp_path / "multiruns" / "2026-01-01_00-00-00"
+    (sweep / ".hydra").mkdir(parents=True)
+    (sweep / "multirun.yaml").write_text("{}")
+    for n in (0, 1, 2, 10):
+        job = make_run(sweep / f"{n}_li2018_h36m_seed{n}")
+        (job / ".hydra").mkdir()
+        (job / ".hydra" / "config.yaml").write_text("{}")  # not a run of its own
+    plain = make_run(tmp_path / "single")
+    runs = discover_runs([sweep, plain, sweep / "1_li2018_h36m_seed1"])
+    # Job order (2 before 10), each run once, plain run folders as given.
+    assert [r.name for r in runs] == [f"{n}_li2018_h36m_seed{n}" for n in (0, 1, 2, 10)] + [
+        "single"
+    ]
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SystemExit, match="no training run"):
+        discover_runs([tmp_path / "empty"])
+    with pytest.raises(SystemExit, match="does not exist"):
+        discover_runs([tmp_path / "nowhere"])
+
+
+# --- grouping --------------------------------------------------------------------------------
+
+
+def _config(run_name="li2018_h36m", dataset="h36m", seed=1, fake_slot=False, device="cpu"):
+    return {
+        "run_name": run_name,
+        "seed": seed,
+        "iterations": 4000,
+        "paths": {"output_dir": f"/runs/{run_name}_{seed}"},
+        "trainer": {"accelerator": device},
+        "data": {"name": dataset, "seed": seed, "data_dir": f"/data{seed}"},
+        "adversarial": {"reference_fake_slot": fake_slot},
+    }
+
+
+def test_seeds_are_grouped_and_other_differences_are_not():
+    runs = [
+        {"config": _config(seed=1)},
+        {"config": _config(seed=2, device="gpu")},  # device and folders do not matter
+        {"config": _config("li2018_cmu", "cmu", seed=1)},
+        {"config": _config(seed=3, fake_slot=True)},
+        {"config": _config(seed=4, fake_slot=True)},
+        {"config": _config("li2018_cmu", "cmu", seed=2)},
+    ]
+    groups = group_runs(runs)
+    assert [(g.label, g.dataset, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
+        ("li2018_h36m (adversarial.reference_fake_slot=False)", "h36m", [1, 2]),
+        ("li2018_cmu", "cmu", [1, 2]),
+        ("li2018_h36m (adversarial.reference_fake_slot=True)", "h36m", [3, 4]),
+    ]
+
+
+# --- the page from stored results ------------------------------------------------------------
+
+MS = [80, 160, 320, 400, 560, 1000]
+H36M = published_table("li2018", None, "h36m", "conv_s2s")
+ACTIONS = [a for a in H36M if a != AVERAGE]
+ABSENT = {"discussion": "missing", "directions": "missing", "sittingdown": "x", "waiting": "x"}
+
+
+def fake_result(level: float, dataset: str = "h36m") -> dict:
+    """An evaluation's results.json: every action at `level` + ms / 1000 (Euler), 10x (MPJPE)."""
+    published, label = published_for({"paper": "li2018", "method": "conv_s2s"}, dataset)
+    evaluated = [a for a in ACTIONS if a not in ABSENT]
+    tables = []
+    for metric, unit, scale in (("euler", "rad", 1.0), ("mpjpe", "mm", 100.0)):
+        values = {a: {ms: scale * (level + ms / 1000) for ms in MS} for a in evaluated}
+        tables.append(
+            ResultTable(
+                title=f"{metric} test table",
+                metric=metric,
+                unit=unit,
+                actions=ACTIONS,
+                horizons_ms=MS,
+                values=values,
+                absent=ABSENT,
+                published=published if metric == "euler" else None,
+                published_label=label,
+            ).to_dict()
+        )
+    return {"provenance": {"missing_files": ["h3.6m/dataset/S5/waiting_1.txt"]}, "tables": tables}
+
+
+def fake_run(seed: int, best: float, last: float, run_name: str = "li2018_h36m") -> dict:
+    return {
+        "path": f"runs/{run_name}_s{seed}",
+        "config": _config(run_name, seed=seed),
+        "seed": seed,
+        "iterations": 4000,
+        "iterations_of": {"best": 2000 + 500 * seed, "last": 4000},
+        "notes": [],
+        "commit": "abc1234",
+        "device": "cpu",
+        "wall_time_s": 600.0,
+        "missing_files": ["h3.6m/dataset/S5/waiting_1.txt"],
+        "results": {"best": {"srnn": fake_result(best)}, "last": {"srnn": fake_result(last)}},
+    }
+
+
+def test_page_reports_best_and_last_as_mean_and_std_over_seeds():
+    runs = [fake_run(1, 0.30, 0.36), fake_run(2, 0.32, 0.40), fake_run(3, 0.34, 0.44)]
+    groups = group_runs(runs)
+    table = summary_table(groups, [], "euler", "srnn")
+    rows = table.splitlines()
+    # best: 0.30/0.32/0.34 + 0.08 at 80 ms -> 0.40 ± 0.02; last: 0.36/0.40/0.44 -> 0.48 ± 0.04
+    assert rows[2].startswith(
+        "| li2018_h36m | h36m | best (test-selected) | 3 | 2,500–3,500 of 4,000 | 0.40 ± 0.02 |"
+    )
+    assert rows[3].startswith(
+        "| li2018_h36m | h36m | last (no test info) | 3 | 4,000 | 0.48 ± 0.04 |"
+    )
+    # The published average over the same 11 actions, then as printed over all 15.
+    evaluated = [a for a in ACTIONS if a not in ABSENT]
+    same = same_set_average(H36M, evaluated, MS)
+    assert rows[4] == (
+        "| li2018_h36m: published (li2018 conv_s2s), same 11 actions | h36m | paper | - | paper | "
+        + " | ".join(f"{same[ms]:.2f}" if ms in same else "-" for ms in MS)
+        + " |"
+    )
+    assert rows[5].startswith(
+        "| li2018_h36m: published (li2018 conv_s2s), as printed (all 15 actions) | h36m | "
+        f"paper | - | paper | {H36M[AVERAGE][80]:.2f} |"
+    )
+
+    page = build_page(groups, [], ["srnn"], "python -m src.report x", "a budget")
+    assert "**Budget.** a budget" in page
+    assert "li2018_h36m (h36m): 3 seeds (1, 2, 3)" in page
+    assert "*best (test-selected)*" in page and "uses test information" in page
+    assert "*last (no test info)*" in page and "without looking at the test windows" in page
+    # Per-action tables for both selections, with the seeds' spread.
+    assert "li2018_h36m on h36m, best (test-selected) checkpoint" in page
+    assert "li2018_h36m on h36m, last (no test info) checkpoint" in page
+    assert f"| walking | 0.40 ± 0.02 ({H36M['walking'][80]:.2f})" in page
+    # Our mean minus the same-set published average, per horizon.
+    assert f"80 ms {0.40 - same[80]:+.2f}" in page
+    assert "`h3.6m/dataset/S5/waiting_1.txt`" in page
+    assert not re.search(r"\bnan\b", page.lower())
+
+    block = readme_block(groups, [], "srnn", "a budget")
+    assert rows[2] in block and "Budget: a budget" in block
+
+
+def test_ablation_rows_get_their_own_published_average_not_the_full_models():
+    groups = group_runs([fake_run(1, 0.3, 0.3, "li2018_h36m_kernel_4x4")])
+    rows = summary_table(groups, [], "euler", "srnn").splitlines()
+    table6 = published_table("li2018", 6, "h36m", "kernel_4x4")[AVERAGE]
+    # Table 6 prints an average only: no same-set row, the printed one is Table 6's.
+    assert not any("same 11 actions" in r for r in rows)
+    printed = next(r for r in rows if "as printed" in r)
+    assert "li2018 kernel_4x4" in printed and f"| {table6[80]:.2f} |" in printed
+    # Figure 4's rows have no published numbers at all.
+    groups = group_runs([fake_run(1, 0.3, 0.3, "li2018_h36m_C5")])
+    assert "published" not in summary_table(groups, [], "euler", "srnn")
+
+
+def test_one_seed_has_no_spread_and_synthetic_data_no_published_values():
+    run = fake_run(1, 0.3, 0.3)
+    run["config"]["data"]["name"] = "synthetic"
+    for selection in ("best", "last"):
+        run["results"][selection]["srnn"] = fake_result(0.3, "synthetic")
+    rows = summary_table(group_runs([run]), [], "euler", "srnn").splitlines()
+    assert len(rows) == 4  # header, rule, best, last: no published rows on synthetic data
+    assert "±" not in rows[2] and "| 0.38 |" in rows[2]

@@ -18,7 +18,16 @@ from src.reporting.published import (
     load_published,
     published_table,
 )
-from src.reporting.tables import ResultTable, results_from_metric
+from src.reporting.tables import (
+    AVERAGE,
+    ResultTable,
+    SeedTable,
+    Stat,
+    results_from_metric,
+    same_set_average,
+    seed_stat,
+    table_from_dict,
+)
 
 PACKAGED_CSV = Path(__file__).parents[1] / "src" / "reporting" / "published_results.csv"
 
@@ -146,7 +155,8 @@ def test_markdown_layout_with_published_and_absent():
     assert "| action | 80 ms | 160 ms | 320 ms | 400 ms |" in lines
     assert "| walking | 0.39 (0.39) | 0.68 (0.68) | 0.99 (0.99) | 1.15 (1.15) |" in lines
     assert "| discussion [1] | absent | absent | absent | absent |" in lines
-    assert "| **average** | 0.31 (-) | 0.55 (-) | 0.89 (-) | 0.99 (-) |" in lines
+    # Beside our average: Martinez's values averaged over the same 3 evaluated actions.
+    assert "| **average** | 0.31 (0.31) | 0.55 (0.55) | 0.89 (0.90) | 0.99 (0.99) |" in lines
     assert (
         "- [1] absent (discussion): S5 discussion_1.txt and discussion_2.txt are missing" in lines
     )
@@ -239,3 +249,162 @@ def test_results_from_metric_refuses_silent_gaps():
         results_from_metric(values, ["walking", "eating"], absent={"walking": "x", "eating": "y"})
     with pytest.raises(ReportingError, match="len\\(actions\\)"):
         results_from_metric(values, ["walking"])
+
+
+# --- same-set published averages ------------------------------------------------------------
+
+
+def test_same_set_average_is_over_the_given_actions_only():
+    published = {
+        "walking": {80: 0.2, 160: 0.4},
+        "eating": {80: 0.4, 160: 0.8},
+        "smoking": {80: 0.9},  # no 160 ms value
+        AVERAGE: {80: 9.0, 160: 9.0},  # the paper's own average is never used here
+    }
+    assert same_set_average(published, ["walking", "eating"], [80, 160]) == {
+        80: pytest.approx(0.3),
+        160: pytest.approx(0.6),
+    }
+    # A horizon where one of the actions has no published value has no same-set average.
+    assert same_set_average(published, ["walking", "smoking"], [80, 160]) == {
+        80: pytest.approx(0.55)
+    }
+    assert same_set_average(None, ["walking"], [80]) == {}
+    assert same_set_average(published, [], [80]) == {}
+
+
+def test_same_set_average_of_li_h36m_over_the_11_actions_of_this_data_copy():
+    """The like-for-like comparison of issue 12: Li et al.'s H3.6M values (Tables 1 and 2)
+    averaged over the 11 actions this copy can evaluate, beside the printed 15-action average."""
+    published = published_table("li2018", None, "h36m", "conv_s2s")
+    absent = {"discussion", "directions", "sittingdown", "waiting"}
+    evaluated = [a for a in published if a != AVERAGE and a not in absent]
+    assert len(evaluated) == 11
+    same = same_set_average(published, evaluated, LI_MS)
+    for ms in LI_MS:
+        assert same[ms] == pytest.approx(sum(published[a][ms] for a in evaluated) / 11)
+    # Recomputed over all 15 actions it matches the printed average up to rounding.
+    everything = same_set_average(published, [a for a in published if a != AVERAGE], LI_MS)
+    for ms in LI_MS:
+        assert everything[ms] == pytest.approx(published[AVERAGE][ms], abs=0.006)
+
+
+def test_result_table_prints_same_set_and_as_printed_averages():
+    published = published_table("li2018", None, "h36m", "conv_s2s")
+    actions = ["walking", "eating", "discussion"]
+    values = {a: {ms: 1.0 for ms in LI_MS} for a in ("walking", "eating")}
+    table = make_table(
+        actions=actions,
+        horizons_ms=list(LI_MS),
+        values=values,
+        absent={"discussion": "missing"},
+        published=published,
+        published_label="li2018 conv_s2s",
+    )
+    same = same_set_average(published, ["walking", "eating"], LI_MS)
+    lines = table.to_markdown().splitlines()
+    average = next(line for line in lines if line.startswith("| **average**"))
+    assert (
+        average == "| **average** | " + " | ".join(f"1.00 ({same[ms]:.2f})" for ms in LI_MS) + " |"
+    )
+    printed = next(line for line in lines if line.startswith("| published average, as printed"))
+    assert printed.endswith(" | ".join(f"{published[AVERAGE][ms]:.2f}" for ms in LI_MS) + " |")
+    assert "same 2 evaluated actions" in table.to_markdown()
+    assert "over all 15 actions" in table.to_markdown()  # the paper's, not our 3
+    d = table.to_dict()
+    assert d["published_same_set"] == {str(ms): pytest.approx(same[ms]) for ms in LI_MS}
+    rows = list(csv.DictReader(io.StringIO(table.to_csv())))
+    avg80 = next(r for r in rows if (r["action"], r["ms"]) == ("average", "80"))
+    assert float(avg80["published"]) == pytest.approx(same[80])
+    printed80 = next(r for r in rows if (r["action"], r["ms"]) == ("average_as_printed", "80"))
+    assert float(printed80["published"]) == published[AVERAGE][80]
+
+
+# --- seed aggregation -----------------------------------------------------------------------
+
+
+def test_seed_stat_is_mean_and_sample_std():
+    stat = seed_stat([0.40, 0.42, 0.44])
+    assert stat.mean == pytest.approx(0.42) and stat.n == 3
+    assert stat.std == pytest.approx(0.02)  # n - 1 denominator
+    assert stat.format(2) == "0.42 ± 0.02"
+    single = seed_stat([0.4])
+    assert single == Stat(0.4, None, 1) and single.format(2) == "0.40"
+    with pytest.raises(ReportingError):
+        seed_stat([])
+
+
+def _seed_tables() -> list[ResultTable]:
+    tables = []
+    for offset in (0.0, 0.02, 0.04):
+        values = {
+            "walking": {80: 0.30 + offset, 160: 0.50 + offset},
+            "eating": {80: 0.20 + 2 * offset, 160: 0.40},
+        }
+        tables.append(
+            make_table(
+                actions=["walking", "eating", "discussion"],
+                horizons_ms=[80, 160],
+                values=values,
+                absent={"discussion": "missing"},
+                published=None,
+            )
+        )
+    return tables
+
+
+def test_seed_table_aggregates_cells_and_averages():
+    tables = _seed_tables()
+    seeds = SeedTable("li2018_h36m, best", tables)
+    assert seeds.n == 3 and seeds.evaluated == ["walking", "eating"]
+    walking = seeds.stats("walking")
+    assert walking[80].mean == pytest.approx(0.32) and walking[80].std == pytest.approx(0.02)
+    eating = seeds.stats("eating")
+    assert eating[80].std == pytest.approx(0.04) and eating[160].std == pytest.approx(0.0)
+    # The average row: mean and std of the per-seed averages.
+    per_seed = [t.average()[80] for t in tables]  # 0.25, 0.28, 0.31
+    average = seeds.average()
+    assert average[80].mean == pytest.approx(sum(per_seed) / 3)
+    assert average[80].std == pytest.approx(0.03)
+    md = seeds.to_markdown()
+    assert "mean ± std over 3 seeds" in md
+    assert "| walking | 0.32 ± 0.02 | 0.52 ± 0.02 |" in md
+    assert "| **average** | 0.28 ± 0.03 | 0.46 ± 0.01 |" in md
+    assert "| discussion [1] | absent | absent |" in md
+    assert "sample standard deviation over the 3 seeds" in md
+
+
+def test_seed_table_with_published_and_one_seed():
+    published = {"walking": {80: 0.3, 160: 0.5}, "eating": {80: 0.1}, AVERAGE: {80: 0.25}}
+    seeds = SeedTable("one seed", _seed_tables()[:1], published, "paper x")
+    md = seeds.to_markdown()
+    assert "1 seed" in md and "±" not in md.split("\n\n")[1]  # no std from one value
+    assert "| walking | 0.30 (0.30) | 0.50 (0.50) |" in md
+    # Same-set average over walking and eating at 80 ms; none at 160 (eating has no value).
+    assert "| **average** | 0.25 (0.20) | 0.45 (-) |" in md
+    assert "| published average, as printed | 0.25 | - |" in md
+    assert "paper x" in md
+
+
+def test_seed_table_refuses_different_configurations():
+    tables = _seed_tables()
+    other = make_table(
+        actions=["walking", "eating", "discussion"],
+        horizons_ms=[80, 160],
+        values={a: {80: 0.1, 160: 0.1} for a in ("walking", "eating", "discussion")},
+        absent={},
+        published=None,
+    )
+    with pytest.raises(ReportingError, match="differ"):
+        SeedTable("mixed", [tables[0], other])
+    with pytest.raises(ReportingError, match="no tables"):
+        SeedTable("empty", [])
+
+
+def test_table_from_dict_round_trips():
+    table = make_table()
+    back = table_from_dict(json.loads(json.dumps(table.to_dict())), table.published, "label")
+    assert back.values == table.values and back.absent == table.absent
+    assert back.average() == pytest.approx(table.average())
+    assert back.published_label == "label"
+    assert table_from_dict(table.to_dict()).published is None

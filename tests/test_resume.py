@@ -40,17 +40,43 @@ def _train_cmd(log_dir: Path, *extra: str) -> list[str]:
     return [sys.executable, "-m", "src.train", f"paths.log_dir={log_dir}", *TINY, *extra]
 
 
-def _env(data_dir: Path) -> dict[str, str]:
+RISING_ERROR = """
+# Test hook loaded through PYTHONPATH: the validation error only rises (1 per iteration), so
+# every validation after the first is no improvement, the case that used to leave an old
+# last.ckpt behind (Lightning wrote it only together with a new best).
+from src.lit.predictor import MotionPredictor
+
+_log_dict = MotionPredictor.log_dict
+
+
+def _rising(self, metrics, **kwargs):
+    if "val/euler_avg" in metrics:
+        metrics = {**metrics, "val/euler_avg": float(self.iteration)}
+    return _log_dict(self, metrics, **kwargs)
+
+
+MotionPredictor.log_dict = _rising
+"""
+
+
+def _env(data_dir: Path, hook_dir: Path | None = None) -> dict[str, str]:
     # One thread: the same kernels in every run, and no oversubscription of a shared machine.
-    return {**os.environ, "MOTION_DATA_DIR": str(data_dir), "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "OMP_NUM_THREADS": "1"}
+    if hook_dir is not None:
+        hook_dir.mkdir(exist_ok=True)
+        (hook_dir / "sitecustomize.py").write_text(RISING_ERROR)
+        env["PYTHONPATH"] = os.pathsep.join([str(hook_dir), str(ROOT)])
+    return env
 
 
 def _run_folders(log_dir: Path) -> list[Path]:
     return sorted((log_dir / "train" / "runs").glob("*/*"))
 
 
-def _kill_after_checkpoint(proc: subprocess.Popen, log_dir: Path, timeout: float = 400) -> dict:
-    """Freeze `proc` as soon as its last.ckpt exists and loads, then SIGKILL it; return that
+def _kill_after_checkpoint(
+    proc: subprocess.Popen, log_dir: Path, at: int, timeout: float = 400
+) -> dict:
+    """Freeze `proc` as soon as its last.ckpt holds iteration `at`, then SIGKILL it; return that
     checkpoint. SIGSTOP first, so the process cannot write on while the file is checked."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -64,6 +90,10 @@ def _kill_after_checkpoint(proc: subprocess.Popen, log_dir: Path, timeout: float
             except Exception:  # caught mid-write: let it finish the file
                 proc.send_signal(signal.SIGCONT)
                 time.sleep(0.05)
+                continue
+            if int(ckpt["state_dict"]["iteration"]) < at:
+                proc.send_signal(signal.SIGCONT)
+                time.sleep(0.005)
                 continue
             proc.send_signal(signal.SIGKILL)
             proc.wait(timeout=60)
@@ -91,7 +121,9 @@ def _same(a, b, where: str = "") -> None:
 
 @pytest.mark.slow
 def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
-    env = _env(synthetic_data_dir)
+    """Killed right after the validation of iteration 4, which did not improve on iteration
+    2's: last.ckpt must hold iteration 4 all the same."""
+    env = _env(synthetic_data_dir, tmp_path / "hook")
 
     # A: uninterrupted.
     log_a = tmp_path / "a"
@@ -101,7 +133,11 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     assert proc.returncode == 0, proc.stderr[-3000:]
     (run_a,) = _run_folders(log_a)
 
-    # B: killed after its first checkpoint (iteration 2 or, on a fast machine, 4).
+    assert sorted(p.name for p in (run_a / "checkpoints").glob("best-*")) == [
+        "best-epoch000.ckpt"
+    ], "the hook should make every later validation worse"
+
+    # B: killed after the checkpoint of its second validation (no improvement).
     log_b = tmp_path / "b"
     killed = subprocess.Popen(
         _train_cmd(log_b),
@@ -110,10 +146,10 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    saved = _kill_after_checkpoint(killed, log_b)
+    saved = _kill_after_checkpoint(killed, log_b, at=4)
     assert killed.returncode == -signal.SIGKILL
     at = int(saved["state_dict"]["iteration"])
-    assert at in (2, 4), f"killed at iteration {at}, not between epochs"
+    assert at == 4, f"killed at iteration {at}, not after the second validation"
     (run_b,) = _run_folders(log_b)
     assert not (run_b / "summary.yaml").exists()
     last_b = run_b / "checkpoints" / "last.ckpt"
@@ -149,3 +185,62 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
         _same(end_a[part], end_b[part], part)
     assert len(end_a["optimizer_states"]) == 2 and len(end_a["lr_schedulers"]) == 2
     assert end_b["loops"]["fit_loop"]["epoch_progress"]["current"]["processed"] == 3
+
+
+@pytest.mark.slow
+def test_ctrl_c_between_validations_saves_and_resumes_exactly(tmp_path, synthetic_data_dir):
+    """SIGINT mid-epoch: the iteration in progress finishes, last.ckpt is written and named,
+    the process exits without a traceback, and the resumed run ends where an uninterrupted
+    one does (the training sampler skips the batches the epoch already used)."""
+    env = {**_env(synthetic_data_dir), "PYTHONUNBUFFERED": "1"}
+    n = ["iterations=300", "val_every=300", "checkpoint_every=0"]
+
+    log_a = tmp_path / "a"
+    proc = subprocess.run(
+        _train_cmd(log_a, *n), cwd=ROOT, env=env, capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (run_a,) = _run_folders(log_a)
+
+    log_b = tmp_path / "b"
+    proc = subprocess.Popen(
+        _train_cmd(log_b, *n),
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    seen = []
+    for line in proc.stdout:  # the model summary is printed when fit starts
+        seen.append(line)
+        if "Trainable params" in line:
+            break
+    time.sleep(2.0)
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    proc.send_signal(signal.SIGINT)
+    out = "".join(seen) + proc.stdout.read()
+    assert proc.wait(timeout=120) == 130, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    (run_b,) = _run_folders(log_b)
+    last_b = run_b / "checkpoints" / "last.ckpt"
+    assert f"wrote {last_b}" in out and f"ckpt_path={last_b}" in out
+    at = int(torch.load(last_b, weights_only=True)["state_dict"]["iteration"])
+    assert 0 < at < 300, f"interrupted at iteration {at}, not between validations"
+    assert not (run_b / "summary.yaml").exists()
+
+    time.sleep(1.1)
+    proc = subprocess.run(
+        _train_cmd(log_b, *n, f"ckpt_path={last_b}"),
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (resumed,) = [f for f in _run_folders(log_b) if f != run_b]
+    end_a = torch.load(run_a / "checkpoints" / "last.ckpt", weights_only=True)
+    end_b = torch.load(resumed / "checkpoints" / "last.ckpt", weights_only=True)
+    for part in ("state_dict", "optimizer_states", "lr_schedulers", "rng"):
+        _same(end_a[part], end_b[part], part)

@@ -53,10 +53,11 @@ def test_basic_sweep_gives_each_run_a_named_folder(tmp_path, synthetic_data_dir)
     sweep = _sweep_dir(tmp_path, "train")
     assert (sweep / "multirun.yaml").is_file()
     runs = sorted(p.name for p in sweep.iterdir() if p.is_dir())
-    # job number, then the overrides; paths.log_dir is left out (its slashes would nest folders)
+    # job number, then the overrides; paths.log_dir is left out (its slashes would nest
+    # folders); no "=" or ",", which Hydra's parser would stop at in ckpt_path=<path>
     assert runs == [
-        f"{n}_data.batch_size=4,data=synthetic,iterations=2,model.net.hidden={h},"
-        "model=gru_s2s,val_every=2"
+        f"{n}_data.batch_size-4+data-synthetic+iterations-2+model.net.hidden-{h}"
+        "+model-gru_s2s+val_every-2"
         for n, h in ((0, 16), (1, 32))
     ]
     for name, hidden in zip(runs, (16, 32), strict=True):
@@ -110,7 +111,7 @@ def test_submitit_local_launcher_runs_the_job(tmp_path, synthetic_data_dir):
     assert proc.returncode == 0, proc.stderr[-3000:]
     sweep = _sweep_dir(tmp_path, "train")
     (run,) = [p for p in sweep.iterdir() if p.is_dir() and not p.name.startswith(".")]
-    assert run.name.startswith("0_") and "model.net.hidden=16" in run.name
+    assert run.name.startswith("0_") and "model.net.hidden-16" in run.name
     _check_run(run)
     # The job went through submitit: its pickled result lies in the sweep's .submitit folder.
     assert list((sweep / ".submitit").glob("*/*_result.pkl"))

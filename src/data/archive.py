@@ -19,6 +19,7 @@ import shutil
 import stat
 import urllib.request
 import zipfile
+import zlib
 from pathlib import Path, PurePosixPath
 
 from src.data.errors import DataError, DataNotFoundError
@@ -163,20 +164,7 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
     try:
-        with zipfile.ZipFile(archive) as zf:
-            for info in zf.infolist():
-                rel = _member_path(info.filename, spec.root, archive)
-                if rel is None or info.is_dir():
-                    continue
-                if stat.S_ISLNK(info.external_attr >> 16):
-                    raise DataError(
-                        f"{archive}: member {info.filename!r} is a symbolic link; refusing to "
-                        "unpack (fix: use the archive as distributed)"
-                    )
-                dest = tmp / rel
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                with zf.open(info) as src, open(dest, "wb") as out:
-                    shutil.copyfileobj(src, out, 1 << 20)
+        _extract(archive, spec, tmp)
         if not (tmp / spec.marker).is_dir():
             raise DataError(
                 f"{archive}: holds no {spec.marker}/ folder, so it is not the {spec.name} archive "
@@ -194,6 +182,37 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
             # else another process finished unpacking first; its copy is as good as ours
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
+    """Write the dataset members of ``archive`` under ``tmp``; a member whose bytes do not
+    match its CRC (or do not decompress) raises a DataError naming it."""
+    member = None  # the member being read, named when the archive turns out damaged
+    try:
+        with zipfile.ZipFile(archive) as zf:
+            for info in zf.infolist():
+                rel = _member_path(info.filename, spec.root, archive)
+                if rel is None or info.is_dir():
+                    continue
+                if stat.S_ISLNK(info.external_attr >> 16):
+                    raise DataError(
+                        f"{archive}: member {info.filename!r} is a symbolic link; refusing to "
+                        "unpack (fix: use the archive as distributed)"
+                    )
+                dest = tmp / rel
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                member = info.filename
+                with zf.open(info) as src, open(dest, "wb") as out:
+                    shutil.copyfileobj(src, out, 1 << 20)
+                member = None
+    except (zipfile.BadZipFile, zlib.error, EOFError) as err:
+        where = f"member {member!r}" if member else "its directory"
+        raise DataError(
+            f"{archive} is damaged: {where} does not read back as stored ({err}); nothing was "
+            f"unpacked. Fix: download {spec.archive_name} again ({spec.url}) and check it with "
+            f"`unzip -t {archive.name}` (or compare its sha256 with the MANIFEST your copy came "
+            "with)."
+        ) from None
 
 
 def _remove_stale_temps(data_dir: Path, spec: DatasetSpec) -> None:

@@ -310,7 +310,15 @@ class MotionDataModule(L.LightningDataModule):
     # ---- loaders ----------------------------------------------------------------------------
 
     def _loader_kwargs(self) -> dict:
-        return {"num_workers": self.num_workers, "persistent_workers": self.num_workers > 0}
+        # A generator of the loader's own: creating an iterator draws a base seed for the
+        # workers, which would otherwise come from the global generator that the dropout masks
+        # use. A resumed run creates its iterator at a different point than the run it continues
+        # (mid-epoch), so that draw would shift every later mask.
+        return {
+            "num_workers": self.num_workers,
+            "persistent_workers": self.num_workers > 0,
+            "generator": torch.Generator().manual_seed(self.seed),
+        }
 
     def train_dataloader(self) -> DataLoader:
         self._require_setup()

@@ -27,7 +27,7 @@ from typing import Any
 
 import lightning as L
 import torch
-from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from lightning.pytorch.callbacks import Checkpoint, ModelCheckpoint
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.normalization import Normalizer
@@ -74,10 +74,14 @@ def slim(ckpt: dict) -> dict:
     return {k: v for k, v in ckpt.items() if k not in RESUME_KEYS}
 
 
-class LastCheckpoint(Callback):
+class LastCheckpoint(Checkpoint):
     """Writes the resumable `last.ckpt` at every validation, every `every` iterations (0: off)
     and, on SIGINT/SIGTERM, after the iteration in progress; then training stops with
-    TrainingInterrupted. A second signal aborts at once."""
+    TrainingInterrupted. A second signal aborts at once.
+
+    A `Checkpoint` subclass so that the Trainer runs it after every other callback: the state
+    it saves (random generator included) is then the state the next iteration starts from,
+    whatever the other callbacks' hooks did at the same point (the frame-strip logger draws)."""
 
     def __init__(self, dirpath: str | Path, every: int = 0):
         self.path = Path(dirpath) / LAST
@@ -131,8 +135,12 @@ class LastCheckpoint(Callback):
         if self.every and iteration % self.every == 0:
             self.save(trainer, pl_module)
 
-    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if not trainer.sanity_checking and not trainer.fast_dev_run:
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        # An epoch is `val_every` iterations and ends with its validation, so this is the save
+        # after every validation. Not in on_validation_end: there the fit loop has not yet
+        # counted the epoch as processed, and a resume from that state runs the epoch's end
+        # again (a second validation, which draws from the random generator).
+        if not trainer.fast_dev_run:
             self.save(trainer, pl_module)
 
 

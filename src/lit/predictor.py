@@ -24,6 +24,7 @@ from typing import Any
 import lightning as L
 import torch
 import torch.nn.functional as F
+from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
@@ -129,15 +130,19 @@ class MotionPredictor(L.LightningModule):
     def _eta(self) -> float:
         return 1.0 if self.eta_schedule is None else float(self.eta_schedule(int(self.iteration)))
 
-    def _sequences(self, observed: Tensor, tail: Tensor, future: Tensor) -> Tensor:
-        """The 75-frame sequence the discriminator judges: observed frames then `tail`.
+    def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
+        """The 75-frame sequence the discriminator judges: the observed frames, then the ground
+        truth `future` (the real sample) or the prediction `fake`.
 
         The reference code put the first ground-truth future frame in the slot of the last
-        observed frame (protocol §6.5); `reference_fake_slot` reproduces that for comparison.
+        observed frame of the fake sample only (protocol §6.5: w[0..48], w[50], predictions;
+        the real sample is w[0..74]); `reference_fake_slot` reproduces that for comparison.
         """
+        if fake is None:
+            return torch.cat([observed, future], dim=1)
         if self.reference_fake_slot:
             observed = torch.cat([observed[:, :-1], future[:, :1]], dim=1)
-        return torch.cat([observed, tail], dim=1)
+        return torch.cat([observed, fake], dim=1)
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         observed, future, action = batch["observed"], batch["future"], batch["action"]
@@ -160,8 +165,8 @@ class MotionPredictor(L.LightningModule):
             self.toggle_optimizer(opt_d)
             with torch.no_grad():
                 fake = self.net(obs_d, fut_d.shape[1], action=act_d, future=fut_d, eta=eta)
-            logit_real = self.discriminator(self._sequences(obs_d, fut_d, fut_d), act_d)
-            logit_fake = self.discriminator(self._sequences(obs_d, fake, fut_d), act_d)
+            logit_real = self.discriminator(self._sequence(obs_d, fut_d), act_d)
+            logit_fake = self.discriminator(self._sequence(obs_d, fut_d, fake), act_d)
             # eq. (8): -log D(real) - log(1 - D(fake))
             loss_d_adv = F.binary_cross_entropy_with_logits(
                 logit_real, torch.ones_like(logit_real)
@@ -183,7 +188,7 @@ class MotionPredictor(L.LightningModule):
         loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else pred.new_zeros(())
         loss_g = loss_recon + self.lambda_2 * loss_l2
         if self.adversarial:
-            logit = self.discriminator(self._sequences(observed, pred, future), action)
+            logit = self.discriminator(self._sequence(observed, future, pred), action)
             # eq. (9), non-saturating form -log D(fake) as in the reference (protocol §6.5)
             loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
             loss_g = loss_g + self.lambda_adv * loss_adv
@@ -314,10 +319,24 @@ class MotionPredictor(L.LightningModule):
             "architecture": type(self.net).__name__,
             "adversarial": self.adversarial,
         }
-        # The random state (dropout) so that a resumed run continues bit for bit on CPU.
+        # The random state (dropout masks) so that a resumed run continues as it would have:
+        # CPU generator always, every CUDA device's generator when CUDA is in use.
         checkpoint["rng"] = {"torch": torch.get_rng_state()}
+        if torch.cuda.is_available() and torch.cuda.is_initialized():
+            checkpoint["rng"]["cuda"] = torch.cuda.get_rng_state_all()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         rng = checkpoint.get("rng")
-        if rng is not None:
-            torch.set_rng_state(rng["torch"])
+        if rng is None:
+            return
+        torch.set_rng_state(rng["torch"])
+        cuda = rng.get("cuda")
+        if cuda is not None and torch.cuda.is_available():
+            if len(cuda) != torch.cuda.device_count():
+                rank_zero_warn(
+                    f"the checkpoint holds the random state of {len(cuda)} CUDA devices, this "
+                    f"machine has {torch.cuda.device_count()}: dropout masks after the resume "
+                    "differ from an uninterrupted run"
+                )
+            for i, state in enumerate(cuda[: torch.cuda.device_count()]):
+                torch.cuda.set_rng_state(state, i)

@@ -92,3 +92,42 @@ def published_table(
             )
         cells[r.ms] = r.value
     return out
+
+
+def published_datasets() -> frozenset[str]:
+    """The datasets the papers published numbers for ("h36m", "cmu")."""
+    return frozenset(r.dataset for r in _rows())
+
+
+def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
+    """(published values {action: {ms: value}}, label) of a model config's `published` entry,
+    for results computed on `dataset`; (None, None) where no paper has numbers for it.
+
+    `ref` is {paper, method[, table]} or one such entry per dataset ({h36m: {...}, cmu: {...}}).
+    `dataset` is the name of the data the results were computed on (the data config's `name`),
+    so the synthetic data, although in the H3.6M format, never gets the H3.6M numbers: a
+    published value stands only beside a result on the dataset it was published for.
+    """
+    if not ref or dataset not in published_datasets():
+        return None, None
+    if dataset in ref:
+        ref = ref[dataset]
+    if not isinstance(ref, dict) or "paper" not in ref:
+        return None, None
+    try:
+        table = published_table(ref["paper"], ref.get("table"), dataset, ref["method"])
+    except ReportingError:
+        return None, None
+    return table, f"{ref['paper']} {ref['method']}"
+
+
+def published_beside(table: dict, dataset: str) -> dict | None:
+    """The `published` values of a result table (`ResultTable.to_dict()`, as in results.json),
+    or None when the results were computed on a dataset no paper published numbers for.
+
+    For code that prints tables from stored results (src.report): a results.json written before
+    the published values were tied to the dataset may carry H3.6M numbers beside synthetic-data
+    results; this drops them."""
+    if dataset not in published_datasets():
+        return None
+    return table.get("published")

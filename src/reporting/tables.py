@@ -5,11 +5,19 @@ Actions that could not be evaluated (e.g. S5 files missing from a partial data c
 as "absent", with the reason in a footnote, never as 0 or NaN. The "average" row is the mean of
 the per-action errors over the evaluated actions only (protocol §4.1 step 6), and the table says
 which actions those are.
+
+Beside that average stands the published average recomputed from the paper's per-action values
+over the same evaluated actions (like for like when some actions are absent), and below it the
+paper's average as printed, over all of its actions.
+
+SeedTable aggregates the tables of runs that differ only in their seed: each cell is the mean
+± the sample standard deviation over the seeds, and the table says how many there are.
 """
 
 import csv
 import io
 import math
+import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -19,6 +27,73 @@ from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import ReportingError
 
 AVERAGE = "average"
+AS_PRINTED = "average_as_printed"
+
+
+def same_set_average(
+    published: Mapping[str, Mapping[int, float]] | None,
+    actions: Sequence[str],
+    horizons_ms: Sequence[int],
+) -> dict[int, float]:
+    """Mean of the published per-action values over `actions`, at each horizon where the paper
+    gives a value for every one of them (horizons where one is missing are left out).
+
+    This is the published average over the same actions as ours: the papers' own averages cover
+    all of their actions, and a data copy may lack some (protocol §4.1 step 6)."""
+    if not published or not actions:
+        return {}
+    out = {}
+    for ms in horizons_ms:
+        cells = [published.get(a, {}).get(ms) for a in actions]
+        if all(v is not None for v in cells):
+            out[int(ms)] = sum(cells) / len(cells)
+    return out
+
+
+def fmt(value: float | None, decimals: int) -> str:
+    """A number at `decimals` places; '-' for None (no number)."""
+    return "-" if value is None else f"{value:.{decimals}f}"
+
+
+@dataclass(frozen=True)
+class Stat:
+    """Mean and sample standard deviation (n - 1 denominator) of one cell over n seeds; std is
+    None for a single seed."""
+
+    mean: float
+    std: float | None
+    n: int
+
+    def format(self, decimals: int) -> str:
+        text = f"{self.mean:.{decimals}f}"
+        return text if self.std is None else f"{text} ± {self.std:.{decimals}f}"
+
+
+def seed_stat(values: Sequence[float]) -> Stat:
+    """Mean ± sample standard deviation of one cell's values over seeds."""
+    values = [float(v) for v in values]
+    if not values:
+        raise ReportingError("no values to aggregate over seeds")
+    std = statistics.stdev(values) if len(values) > 1 else None
+    return Stat(statistics.fmean(values), std, len(values))
+
+
+def printed_scope(published: Mapping[str, Mapping] | None) -> str:
+    """What the paper's printed average covers: "all 15 actions" where the paper gives the
+    per-action values, else (an average-only table) "all of its actions"."""
+    n = len([a for a in published or {} if a != AVERAGE])
+    return f"all {n} actions" if n else "all of its actions"
+
+
+def _published_notes(label: str | None, n_evaluated: int, scope: str) -> list[str]:
+    label = label or "published"
+    return [
+        f"- Cells: ours (published: {label}); '-' where the paper has no number.",
+        f"- Published average beside ours: recomputed from the paper's per-action values over the "
+        f"same {n_evaluated} evaluated action{'s' if n_evaluated != 1 else ''}, like for like; "
+        f"'-' where the paper gives no per-action value for one of them. The row 'published "
+        f"average, as printed' is the paper's own average, over {scope}.",
+    ]
 
 
 @dataclass
@@ -77,7 +152,20 @@ class ResultTable:
         }
 
     def _published(self, action: str, ms: int) -> float | None:
+        if action == AVERAGE:
+            return self.published_same_set().get(ms)
+        if action == AS_PRINTED:
+            return (self.published or {}).get(AVERAGE, {}).get(ms)
         return (self.published or {}).get(action, {}).get(ms)
+
+    def published_same_set(self) -> dict[int, float]:
+        """The published average over our evaluated actions (see same_set_average)."""
+        return same_set_average(self.published, self.evaluated, self.horizons_ms)
+
+    def published_as_printed(self) -> dict[int, float]:
+        """The paper's own average row, over all of its actions; {} if it prints none."""
+        row = (self.published or {}).get(AVERAGE, {})
+        return {ms: row[ms] for ms in self.horizons_ms if ms in row}
 
     def _cell(self, value: float, action: str, ms: int) -> str:
         text = f"{value:.{self.decimals}f}"
@@ -127,13 +215,16 @@ class ResultTable:
             cells = [f"**{AVERAGE}**"]
             cells += [self._cell(average[ms], AVERAGE, ms) for ms in self.horizons_ms]
             lines.append("| " + " | ".join(cells) + " |")
+            printed = self.published_as_printed()
+            if printed:
+                cells = ["published average, as printed"]
+                cells += [fmt(printed.get(ms), self.decimals) for ms in self.horizons_ms]
+                lines.append("| " + " | ".join(cells) + " |")
 
         lines.append("")
         if self.published is not None:
-            label = self.published_label or "published"
-            lines.append(
-                f"- Cells: ours (published: {label}); '-' where the paper has no number. Published "
-                "averages are as printed and may cover a different set of actions."
+            lines += _published_notes(
+                self.published_label, len(self.evaluated), printed_scope(self.published)
             )
         lines.append(f"- Average: {self._average_note()}.")
         for reason, number in notes.items():
@@ -173,6 +264,11 @@ class ResultTable:
             for ms in self.horizons_ms:
                 row = [AVERAGE, ms, repr(average[ms]), published(AVERAGE, ms), self._average_note()]
                 writer.writerow(row)
+            printed = self.published_as_printed()
+            note = f"the paper's own average, over {printed_scope(self.published)}"
+            for ms in self.horizons_ms:
+                if ms in printed:
+                    writer.writerow([AS_PRINTED, ms, "", repr(printed[ms]), note])
         return buf.getvalue()
 
     def to_dict(self) -> dict:
@@ -198,7 +294,165 @@ class ResultTable:
             if self.published is None
             else {a: by_ms(row) for a, row in self.published.items()},
             "published_label": self.published_label,
+            # The published average over the same evaluated actions (the average row's actions).
+            "published_same_set": None
+            if self.published is None
+            else by_ms(self.published_same_set()),
         }
+
+
+@dataclass
+class SeedTable:
+    """The same table from runs that differ only in their seed, aggregated over the seeds.
+
+    Each cell is mean ± sample std over the seeds of that action's error; the average row is
+    mean ± std of the per-seed averages over the evaluated actions (its mean equals the average
+    of the per-action means). All tables must have the same actions, absent actions and
+    horizons: seeds of one configuration on one data copy do.
+    """
+
+    title: str
+    tables: list[ResultTable]
+    published: dict[str, dict[int, float]] | None = None
+    published_label: str | None = None
+
+    def __post_init__(self) -> None:
+        if not self.tables:
+            raise ReportingError(f"{self.title}: no tables to aggregate")
+        first = self.tables[0]
+        for t in self.tables[1:]:
+            same = (
+                t.actions == first.actions
+                and t.horizons_ms == first.horizons_ms
+                and set(t.absent) == set(first.absent)
+                and (t.metric, t.unit) == (first.metric, first.unit)
+            )
+            if not same:
+                raise ReportingError(
+                    f"{self.title}: the seeds' tables differ in actions, absent actions, "
+                    "horizons or metric; only runs of one configuration on one data copy can be "
+                    "aggregated"
+                )
+
+    @property
+    def n(self) -> int:
+        return len(self.tables)
+
+    @property
+    def actions(self) -> list[str]:
+        return self.tables[0].actions
+
+    @property
+    def horizons_ms(self) -> list[int]:
+        return self.tables[0].horizons_ms
+
+    @property
+    def absent(self) -> dict[str, str]:
+        return self.tables[0].absent
+
+    @property
+    def evaluated(self) -> list[str]:
+        return self.tables[0].evaluated
+
+    @property
+    def decimals(self) -> int:
+        return self.tables[0].decimals
+
+    def stats(self, action: str) -> dict[int, Stat]:
+        return {
+            ms: seed_stat([t.values[action][ms] for t in self.tables]) for ms in self.horizons_ms
+        }
+
+    def average(self) -> dict[int, Stat] | None:
+        averages = [t.average() for t in self.tables]
+        if any(a is None for a in averages):
+            return None
+        return {ms: seed_stat([a[ms] for a in averages]) for ms in self.horizons_ms}
+
+    def published_same_set(self) -> dict[int, float]:
+        return same_set_average(self.published, self.evaluated, self.horizons_ms)
+
+    def published_as_printed(self) -> dict[int, float]:
+        row = (self.published or {}).get(AVERAGE, {})
+        return {ms: row[ms] for ms in self.horizons_ms if ms in row}
+
+    def _cell(self, stat: Stat, published: float | None) -> str:
+        text = stat.format(self.decimals)
+        if self.published is not None:
+            text += f" ({fmt(published, self.decimals)})"
+        return text
+
+    def to_markdown(self) -> str:
+        notes: dict[str, int] = {}
+        for action in self.actions:
+            if action in self.absent:
+                notes.setdefault(self.absent[action], len(notes) + 1)
+        seeds = f"{self.n} seed{'s' if self.n != 1 else ''}"
+        lines = [
+            f"**{self.title}**: {self.tables[0].metric} ({self.tables[0].unit}), "
+            + (f"mean ± std over {seeds}" if self.n > 1 else seeds),
+            "",
+            "| action | " + " | ".join(f"{ms} ms" for ms in self.horizons_ms) + " |",
+            "|---" + "|---:" * len(self.horizons_ms) + "|",
+        ]
+        for action in self.actions:
+            if action in self.absent:
+                cells = [f"{action} [{notes[self.absent[action]]}]"]
+                cells += ["absent"] * len(self.horizons_ms)
+            else:
+                pub = (self.published or {}).get(action, {})
+                stats = self.stats(action)
+                cells = [action] + [self._cell(stats[ms], pub.get(ms)) for ms in self.horizons_ms]
+            lines.append("| " + " | ".join(cells) + " |")
+        average = self.average()
+        if average is not None:
+            same = self.published_same_set()
+            cells = [f"**{AVERAGE}**"]
+            cells += [self._cell(average[ms], same.get(ms)) for ms in self.horizons_ms]
+            lines.append("| " + " | ".join(cells) + " |")
+            printed = self.published_as_printed()
+            if printed:
+                cells = ["published average, as printed"]
+                cells += [fmt(printed.get(ms), self.decimals) for ms in self.horizons_ms]
+                lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+        if self.n > 1:
+            lines.append(
+                f"- ±: sample standard deviation over the {self.n} seeds (n - 1 denominator); "
+                "the average row's is that of the per-seed averages."
+            )
+        if self.published is not None:
+            lines += _published_notes(
+                self.published_label, len(self.evaluated), printed_scope(self.published)
+            )
+        lines.append(f"- Average: {self.tables[0]._average_note()}.")
+        for reason, number in notes.items():
+            who = [a for a in self.actions if self.absent.get(a) == reason]
+            lines.append(f"- [{number}] absent ({', '.join(who)}): {reason}")
+        return "\n".join(lines) + "\n"
+
+
+def table_from_dict(
+    d: Mapping, published: Mapping | None = None, published_label: str | None = None
+) -> ResultTable:
+    """A ResultTable back from its to_dict() form (e.g. results.json), with `published` (and
+    its label) in place of the stored published values; None: no published values."""
+
+    def by_int(row: Mapping) -> dict[int, float]:
+        return {int(ms): float(v) for ms, v in row.items()}
+
+    return ResultTable(
+        title=d["title"],
+        metric=d["metric"],
+        unit=d["unit"],
+        actions=list(d["actions"]),
+        horizons_ms=[int(ms) for ms in d["horizons_ms"]],
+        values={a: by_int(row) for a, row in d["values"].items()},
+        absent=dict(d["absent"]),
+        published=None if published is None else {a: by_int(r) for a, r in published.items()},
+        published_label=published_label if published is not None else None,
+        decimals=d.get("decimals"),
+    )
 
 
 def results_from_metric(

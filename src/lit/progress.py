@@ -1,0 +1,88 @@
+"""A plain progress line where people look when there is no terminal.
+
+The progress bar redraws one line of a terminal; sent to a file (`> log 2>&1`, a cluster job)
+it shows nothing for minutes. `ProgressLog` writes `iteration 120/20000 (0.6%) | 0.61 it/s |
+ETA 9h03m | loss_g 0.0412 ...` every `every_s` seconds through logging: Hydra's file handler
+puts it in the run's train.log, and the console handler, through `OffTerminalOnly`
+(conf/hydra/default.yaml), on stdout only when stdout is not a terminal.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+import time
+
+import lightning as L
+from lightning.pytorch.callbacks import Callback
+
+log = logging.getLogger(__name__)
+
+
+def duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds}s"
+    if seconds < 3600:
+        return f"{seconds // 60}m{seconds % 60:02d}s"
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+
+
+def progress_line(iteration: int, total: int, rate: float, losses: dict[str, float]) -> str:
+    """One line: where the run is, how fast it goes, when it ends, the last losses."""
+    eta = (total - iteration) / rate if rate > 0 else math.inf
+    parts = [
+        f"iteration {iteration}/{total} ({100 * iteration / max(total, 1):.1f}%)",
+        f"{rate:.3g} it/s",
+        f"ETA {duration(eta)}",
+    ]
+    if losses:
+        parts.append(" ".join(f"{name} {value:.4g}" for name, value in losses.items()))
+    return " | ".join(parts)
+
+
+class ProgressLog(Callback):
+    """Logs `progress_line` at most every `every_s` seconds (0: every iteration), on rank 0.
+    The rate counts the wall time since training started, validations included, so the ETA
+    is the time the run will really take."""
+
+    def __init__(self, total: int, every_s: float):
+        self.total = int(total)
+        self.every_s = float(every_s)
+        self._start = self._last = 0.0
+        self._first = 0
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._start = self._last = time.monotonic()
+        self._first = int(pl_module.iteration)
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        now = time.monotonic()
+        if now - self._last < self.every_s or not trainer.is_global_zero:
+            return
+        self._last = now
+        iteration = int(pl_module.iteration)
+        rate = (iteration - self._first) / max(now - self._start, 1e-9)
+        losses = {
+            name.removeprefix("train/"): float(value)
+            for name, value in trainer.callback_metrics.items()
+            if name.startswith("train/loss") and not name.endswith("_bar")
+        }
+        log.info("%s", progress_line(iteration, self.total, rate, losses))
+
+
+def _stdout_is_terminal() -> bool:
+    try:
+        return sys.stdout.isatty()
+    except (AttributeError, ValueError):  # replaced or closed stdout
+        return False
+
+
+class OffTerminalOnly(logging.Filter):
+    """For the console handler: progress lines pass only when stdout is not a terminal."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.name != __name__ or not _stdout_is_terminal()

@@ -1,0 +1,350 @@
+"""Run folders and resumes, settled before anything is written.
+
+Run folders are created with `os.mkdir`, which exactly one process can win: two runs started
+in the same second (the resolution of the folder's timestamp) get `<time>` and `<time>-1`.
+A folder named on the command line (`hydra.run.dir=...`) is used as given, and refused when it
+already holds a run.
+
+A resume continues a run, not a config: `restore_run` rebuilds the configuration from the
+run's own `config.yaml` (saved resolved, beside its `checkpoints/`), and the command line's
+overrides go on top. An override that would change what the run computes is refused; the
+length (`iterations`), where files live, logging and the Trainer's settings may change.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
+from src.lit.factory import ConfigError
+
+# Where files live on this machine: always taken from this command, never from the resumed run.
+FROM_HERE = (
+    "hydra",  # in a config composed in-process (and so in the config.yaml of such a run)
+    "paths",
+    "ckpt_path",
+    "resume",
+    "trainer.default_root_dir",
+    "data.data_dir",
+    "data.archive_dir",
+    "data.archive",
+)
+# Restored from the run, but the command line may change them: they do not change what the
+# run computes (the Trainer's device settings are the user's to adapt to the machine).
+FREE = (
+    "iterations",
+    "run_name",
+    "task_name",
+    "checkpoint_every",
+    "media_every",
+    "progress_every_s",
+    "trainer",
+    "data.num_workers",
+)
+_ABSENT = object()
+
+
+def _under(key: str, prefixes: tuple[str, ...]) -> bool:
+    return any(key == p or key.startswith(p + ".") for p in prefixes)
+
+
+# ------------------------------------------------------------------------------ run folders
+@dataclass
+class _Claim:
+    folder: Path
+    created: bool  # False: a folder named by hand that existed (empty of runs) before
+    before: set[str] = field(default_factory=set)
+    parents: list[Path] = field(default_factory=list)  # created for it, deepest first
+
+
+_claimed: _Claim | None = None
+
+
+def claim_run_folder(folder: str | os.PathLike, exact: bool = False) -> Path:
+    """Create this run's folder and return it; no other process can get the same one.
+
+    exact=False: `folder` is a generated name; when taken, `-1`, `-2`, ... are tried.
+    exact=True: the user named it; an existing folder is used only if it holds no run.
+    """
+    global _claimed
+    folder = Path(folder)
+    if exact:
+        created = not folder.exists()
+        folder.mkdir(parents=True, exist_ok=True)
+        before = set(os.listdir(folder))
+        holds_run = (folder / "config.yaml").exists() or any(folder.glob("checkpoints/*.ckpt"))
+        try:
+            # Hydra's .hydra/ is in every folder a CLI run used: creating it is the claim.
+            (folder / ".hydra").mkdir()
+        except FileExistsError:
+            holds_run = True
+        else:
+            if holds_run:
+                (folder / ".hydra").rmdir()
+        if holds_run:
+            raise ConfigError(
+                f"the run folder {folder} (hydra.run.dir) already holds a run; nothing was "
+                "written to it. Name another folder, or leave hydra.run.dir out to get a new "
+                "timestamped one."
+            )
+        _claimed = _Claim(folder, created, before)
+        return folder
+    parents = [p for p in folder.parents if not p.exists()]
+    candidate, n = folder, 0
+    while True:
+        try:
+            candidate.mkdir()
+        except FileExistsError:
+            n += 1
+            candidate = folder.with_name(f"{folder.name}-{n}")
+        except FileNotFoundError:
+            candidate.parent.mkdir(parents=True, exist_ok=True)
+        else:
+            _claimed = _Claim(candidate, created=True, parents=parents)
+            return candidate
+
+
+def discard_unstarted_run(folder: str | os.PathLike, started: str | None = "config.yaml") -> None:
+    """Remove what this process put into `folder` when the run was refused before it started
+    (no file `started` in it yet; None: any refusal): a refused run leaves nothing behind."""
+    claim = _claimed
+    folder = Path(folder)
+    if claim is None or claim.folder.resolve() != folder.resolve():
+        return
+    if started is not None and (folder / started).exists():
+        return
+    if claim.created:
+        shutil.rmtree(folder, ignore_errors=True)
+        for parent in claim.parents:
+            try:
+                parent.rmdir()  # only if empty: another run may have started in it since
+            except OSError:
+                break
+        return
+    for name in set(os.listdir(folder)) - claim.before:
+        path = folder / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------------------ lengths
+def check_schedule(cfg: DictConfig) -> None:
+    """Training runs whole validation periods: `iterations` must be a multiple of `val_every`,
+    or the run would silently train more (or fewer) iterations than asked."""
+    iterations, every = int(cfg.iterations), int(cfg.val_every)
+    if iterations <= 0 or every <= 0 or iterations % every == 0:
+        return  # non-positive values are named by validate_train_config
+    lower = iterations // every * every
+    lengths = " or ".join(f"iterations={n}" for n in (lower, lower + every) if n > 0)
+    divisor = max(d for d in range(1, every + 1) if iterations % d == 0)
+    raise ConfigError(
+        f"iterations={iterations} is not a multiple of val_every={every} (training runs whole "
+        f"validation periods); use {lengths}, or val_every={divisor}."
+    )
+
+
+# ------------------------------------------------------------------------------ resumes
+@dataclass
+class Resume:
+    checkpoint: Path
+    run_dir: Path
+    applied: list[str]  # the command line's overrides, applied on top of the run's settings
+    from_checkpoint: bool  # no config.yaml beside it: sections stored in the checkpoint
+    run_choices: dict[str, str] | None  # the run's config-group options, when recorded
+
+
+def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
+    """The checkpoint named by `resume=<run folder>` (its checkpoints/last.ckpt) or
+    `ckpt_path=`."""
+    resume, ckpt = cfg.get("resume"), cfg.get("ckpt_path")
+    if not resume:
+        return Path(str(ckpt)) if ckpt else None
+    path = Path(str(resume))
+    target = path / "checkpoints" / LAST if path.is_dir() else path
+    if ckpt and Path(str(ckpt)) != target:
+        raise ConfigError(
+            f"resume={resume} and ckpt_path={ckpt} name different checkpoints; give only one."
+        )
+    return target
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(value, resolve=True)
+    return value
+
+
+def _leaves(root: DictConfig, path: str = "") -> dict[str, Any]:
+    """Resolved leaves under `path` (dotted keys), leaving out FROM_HERE and FREE keys before
+    resolving: those may point at this machine's Hydra state, which is not set up yet."""
+    node = OmegaConf.select(root, path) if path else root
+    out: dict[str, Any] = {}
+
+    def walk(value: Any, key: str) -> None:
+        if _under(key, FROM_HERE + FREE):
+            return
+        if isinstance(value, dict) and value:
+            for k, v in value.items():
+                walk(v, f"{key}.{k}" if key else str(k))
+        else:
+            out[key] = _plain(OmegaConf.select(root, key))
+
+    walk(OmegaConf.to_container(node, resolve=False) if isinstance(node, DictConfig) else {}, path)
+    return out
+
+
+def _run_choices(run_dir: Path) -> dict[str, str] | None:
+    try:
+        hydra_cfg = OmegaConf.load(run_dir / ".hydra" / "hydra.yaml")
+        return dict(OmegaConf.to_container(hydra_cfg.hydra.runtime.choices))
+    except Exception:  # absent (a run started in-process) or unreadable: compare values
+        return None
+
+
+def _raw(container: dict, key: str) -> Any:
+    """The unresolved value at a dotted key of a plain container, or _ABSENT."""
+    value: Any = container
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            return _ABSENT
+        value = value[part]
+    return value
+
+
+def _set(cfg: DictConfig, key: str, value: Any) -> None:
+    OmegaConf.update(cfg, key, value, merge=False, force_add=True)
+
+
+def _remove(cfg: DictConfig, key: str) -> None:
+    parent, _, leaf = key.rpartition(".")
+    node = OmegaConf.select(cfg, parent) if parent else cfg
+    if isinstance(node, DictConfig) and leaf in node:
+        del node[leaf]
+
+
+def _shown(value: Any) -> Any:
+    return "absent" if value is _ABSENT else value
+
+
+def _group_conflicts(
+    group: str,
+    text: str,
+    cfg: DictConfig,
+    saved: DictConfig,
+    choices: dict[str, Any],
+    run_choices: dict[str, str] | None,
+) -> list[str]:
+    """A config-group option beside a resume must be the run's own: compared by name where
+    the run recorded its options (.hydra/hydra.yaml), else by the values it gives."""
+    node_key = group.replace("/", ".")
+    if _under(node_key, FROM_HERE + FREE):
+        return []
+    if run_choices is not None:
+        if run_choices.get(group) != choices.get(group):
+            return [f"{text}: the run used {group}={run_choices.get(group)}"]
+        return []
+    # A group of the global package (experiment=...) can set any key: compare them all.
+    node = node_key if isinstance(OmegaConf.select(cfg, node_key), DictConfig) else ""
+    now, then = _leaves(cfg, node), _leaves(saved, node)
+    return [
+        f"{k}: checkpoint {then[k]}, command line {_shown(now.get(k, _ABSENT))} (from {text})"
+        for k in sorted(then)
+        if now.get(k, _ABSENT) != then[k]
+    ]
+
+
+def restore_run(
+    cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
+) -> tuple[DictConfig, Resume | None]:
+    """The configuration that continues the run of the checkpoint `cfg` names: the run's own,
+    with `overrides` (the command line; `choices` its config-group options) on top.
+
+    Raises CheckpointError naming every key the overrides would change, other than FREE ones.
+    Without a checkpoint to resume, returns `cfg` unchanged.
+    """
+    ckpt = checkpoint_to_resume(cfg)
+    if ckpt is None:
+        return cfg, None
+    if not ckpt.is_file():
+        read_checkpoint(ckpt)  # raises the message for a missing file or a folder
+    run_dir = ckpt.absolute().parent.parent
+    if (run_dir / "config.yaml").is_file():
+        saved = OmegaConf.load(run_dir / "config.yaml")
+        from_checkpoint = False
+    else:
+        # The sections the checkpoint stores; the length, schedule and seed come from the
+        # command line, and an epoch stays `val_every` iterations.
+        saved = OmegaConf.create(read_checkpoint(ckpt)["motion"]["config"])
+        saved.data.steps_per_epoch = "${val_every}"
+        from_checkpoint = True
+    run_choices = _run_choices(run_dir)
+
+    raw = OmegaConf.to_container(cfg, resolve=False)
+    restored = OmegaConf.create(OmegaConf.to_container(saved, resolve=False))
+    for key, value in raw.items():  # keys added to the project since the run: today's defaults
+        if key not in restored:
+            restored[key] = value
+    for key in FROM_HERE:  # unresolved: they point at this run's folder, not yet created
+        value = _raw(raw, key)
+        if value is not _ABSENT:
+            _set(restored, key, value)
+        elif key == "hydra":
+            _remove(restored, key)
+    _set(restored, "ckpt_path", str(ckpt))
+
+    applied, conflicts = [], []
+    for override in OverridesParser.create().parse_overrides(list(overrides)):
+        key = override.key_or_group
+        if key in ("ckpt_path", "resume"):
+            continue
+        text = override.input_line
+        applied.append(text)
+        if key in choices:  # a config group: model=..., data=..., trainer=...
+            conflicts += _group_conflicts(key, text, cfg, saved, choices, run_choices)
+            node_key = key.replace("/", ".")
+            if _under(node_key, FREE):
+                _set(restored, node_key, _raw(raw, node_key))
+            continue
+        if _under(key, FROM_HERE):
+            continue
+        if _under(key, FREE):
+            if override.is_delete():
+                _remove(restored, key)
+            else:
+                _set(restored, key, _raw(raw, key))
+            continue
+        old = _plain(OmegaConf.select(saved, key, default=_ABSENT))
+        new = _ABSENT if override.is_delete() else _plain(OmegaConf.select(cfg, key))
+        if old != new:
+            conflicts.append(f"{key}: checkpoint {_shown(old)}, command line {_shown(new)}")
+    if conflicts:
+        raise CheckpointError(
+            f"cannot resume {ckpt} with settings other than its run's: "
+            + "; ".join(conflicts)
+            + ". A resumed run keeps its own settings (only iterations, paths, logging and "
+            "trainer keys may change): leave these overrides out, or start a new run."
+        )
+    OmegaConf.set_struct(restored, True)
+    return restored, Resume(ckpt, run_dir, applied, from_checkpoint, run_choices)
+
+
+def describe(resume: Resume, iteration: int) -> str:
+    source = (
+        "the config sections stored in the checkpoint (no config.yaml beside it)"
+        if resume.from_checkpoint
+        else f"its settings ({resume.run_dir / 'config.yaml'})"
+    )
+    extra = ", ".join(resume.applied) if resume.applied else "none"
+    return (
+        f"resuming the run {resume.run_dir} at iteration {iteration} from {resume.checkpoint}, "
+        f"with {source}; command-line overrides on top: {extra}"
+    )

@@ -1,0 +1,239 @@
+"""Checkpoints never lose work: last.ckpt is the last iteration whatever validation did, saves
+are atomic, the best checkpoint is lean and stays the best of the whole run across resumes."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from src.inference import MotionForecaster
+from src.lit.checkpoints import (
+    LAST,
+    CheckpointError,
+    LastCheckpoint,
+    atomic_save,
+    read_checkpoint,
+    require_resumable,
+)
+from src.lit.compose import compose_config
+from src.lit.predictor import MotionPredictor
+from src.train import train
+
+TINY = [
+    "data=synthetic",
+    "trainer=cpu",
+    "trainer.enable_progress_bar=false",
+    "model=conv_s2s",
+    "model.net.nf=2",
+    "model.net.d_z=8",
+    "adversarial.discriminator.nf=2",
+    "adversarial.discriminator.d_z=8",
+    "adversarial.discriminator.d_fc=8",
+    "data.batch_size=4",
+    "media_every=0",
+]
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def rising_error(monkeypatch):
+    """Validation error that only gets worse: 1, 2, 3, ... per validation, so only the first
+    validation is ever an improvement (the case where Lightning kept an old last.ckpt)."""
+    original = MotionPredictor.log_dict
+
+    def rising(self, metrics, **kwargs):
+        if "val/euler_avg" in metrics:
+            metrics = {**metrics, "val/euler_avg": float(self.iteration)}
+        return original(self, metrics, **kwargs)
+
+    monkeypatch.setattr(MotionPredictor, "log_dict", rising)
+
+
+def _run(out, data_dir, *overrides):
+    cfg = compose_config("train", [*TINY, *overrides], out, data_dir)
+    score = train(cfg)
+    return score, OmegaConf.to_container(OmegaConf.load(out / "summary.yaml"))
+
+
+def _load(path):
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
+def test_last_ckpt_is_the_last_iteration_when_the_error_rises(
+    rising_error, tmp_path, synthetic_data_dir
+):
+    out = tmp_path / "run"
+    score, summary = _run(out, synthetic_data_dir, "iterations=8", "val_every=2")
+    last = _load(out / "checkpoints" / LAST)
+    assert int(last["state_dict"]["iteration"]) == 8 and last["epoch"] == 3
+    # The best is the first validation (iteration 2), kept lean beside it.
+    (best,) = (out / "checkpoints").glob("best-*.ckpt")
+    assert best.name == "best-epoch000.ckpt"
+    assert int(_load(best)["state_dict"]["iteration"]) == 2
+    assert score == summary["best_val_euler_avg"] == 2.0
+    assert summary["best_checkpoint"] == str(best) and summary["last_checkpoint"] == str(
+        out / "checkpoints" / LAST
+    )
+
+
+def test_checkpoint_every_writes_last_between_validations(tmp_path, synthetic_data_dir):
+    seen = []
+    original = LastCheckpoint.save
+
+    def spy(self, trainer, pl_module):
+        seen.append(int(pl_module.iteration))
+        original(self, trainer, pl_module)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(LastCheckpoint, "save", spy)
+    try:
+        _run(tmp_path / "run", synthetic_data_dir, "iterations=6", "val_every=6",
+             "checkpoint_every=2")  # fmt: skip
+    finally:
+        mp.undo()
+    assert seen == [2, 4, 6, 6]  # 6 twice: the periodic save, then validation's (a no-op)
+
+
+def test_best_checkpoint_is_lean_and_loads_for_eval_and_inference(tmp_path, synthetic_data_dir):
+    """Real model sizes (conv_s2s + discriminator on the H3.6M shape of the synthetic data)."""
+    out = tmp_path / "run"
+    _run(
+        out,
+        synthetic_data_dir,
+        "model.net.nf=16",
+        "model.net.d_z=512",
+        "adversarial.discriminator.nf=32",
+        "adversarial.discriminator.d_z=512",
+        "adversarial.discriminator.d_fc=256",
+        "data.batch_size=2",
+        "iterations=1",
+        "val_every=1",
+    )
+    (best,) = (out / "checkpoints").glob("best-*.ckpt")
+    last = out / "checkpoints" / LAST
+    ratio = best.stat().st_size / last.stat().st_size
+    assert ratio <= 0.40, f"best is {ratio:.0%} of last.ckpt"
+    ckpt = read_checkpoint(best)
+    assert "optimizer_states" not in ckpt and "motion" in ckpt
+    with pytest.raises(CheckpointError, match="resume from the run's last.ckpt"):
+        require_resumable(ckpt, best)
+    require_resumable(read_checkpoint(last), last)
+
+    forecaster = MotionForecaster.from_checkpoint(best)
+    frames = torch.zeros(1, 50, 99).numpy()
+    assert forecaster.predict(frames, future_len=5).shape == (1, 5, 99)
+
+    from src.eval import evaluate
+
+    cfg = compose_config("eval", [f"ckpt_path={best}"], tmp_path / "eval", synthetic_data_dir)
+    results = evaluate(cfg)
+    assert results  # evaluated the lean checkpoint end to end
+
+
+def test_a_kill_during_a_write_keeps_the_previous_file(tmp_path, monkeypatch):
+    path = tmp_path / LAST
+    atomic_save({"iteration": torch.tensor(1)}, path)
+
+    def dies_half_way(obj, f):
+        f.write(b"PK\x03\x04 half a zip")
+        raise KeyboardInterrupt  # what SIGKILL would leave, minus the process
+
+    monkeypatch.setattr(torch, "save", dies_half_way)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_save({"iteration": torch.tensor(2)}, path)
+    monkeypatch.undo()
+    assert int(_load(path)["iteration"]) == 1
+    assert [p.name for p in tmp_path.iterdir()] == [LAST]  # no temporary left behind
+
+
+def test_last_checkpoint_write_is_atomic_inside_training(
+    rising_error, tmp_path, synthetic_data_dir, monkeypatch
+):
+    """The callback writes beside last.ckpt and renames: a crash in the write of the second
+    validation's checkpoint leaves the first one loadable."""
+    calls = []
+    original = LastCheckpoint.save
+
+    def crash_on_second(self, trainer, pl_module):
+        calls.append(1)
+        if len(calls) == 2:
+            real = trainer.save_checkpoint
+
+            def half(path, *a, **k):
+                real(path, *a, **k)
+                with open(path, "r+b") as f:  # truncate what was written: a kill mid-write
+                    f.truncate(100)
+                raise OSError("killed mid-write")
+
+            monkeypatch.setattr(trainer, "save_checkpoint", half)
+        original(self, trainer, pl_module)
+
+    monkeypatch.setattr(LastCheckpoint, "save", crash_on_second)
+    out = tmp_path / "run"
+    cfg = compose_config("train", [*TINY, "iterations=4", "val_every=2"], out, synthetic_data_dir)
+    with pytest.raises(OSError, match="killed mid-write"):
+        train(cfg)
+    assert int(read_checkpoint(out / "checkpoints" / LAST)["state_dict"]["iteration"]) == 2
+
+
+def test_best_survives_a_resume(rising_error, tmp_path, synthetic_data_dir):
+    """The resumed run's first validation is worse than the best before the kill: no new best
+    file, the summary names the earlier one, and the earlier folder's files are all kept."""
+    first = tmp_path / "first"
+    _run(first, synthetic_data_dir, "iterations=4", "val_every=2")
+    before = sorted(p.name for p in (first / "checkpoints").iterdir())
+    (best_first,) = (first / "checkpoints").glob("best-*.ckpt")
+
+    second = tmp_path / "second"
+    score, summary = _run(
+        second,
+        synthetic_data_dir,
+        "iterations=8",
+        "val_every=2",
+        f"ckpt_path={first / 'checkpoints' / LAST}",
+    )
+    assert not list((second / "checkpoints").glob("best-*.ckpt"))
+    assert summary["best_checkpoint"] == str(best_first) and score == 2.0
+    assert sorted(p.name for p in (first / "checkpoints").iterdir()) == before
+    assert int(_load(second / "checkpoints" / LAST)["state_dict"]["iteration"]) == 8
+
+
+def test_resuming_from_a_lean_best_checkpoint_is_refused(tmp_path, synthetic_data_dir):
+    first = tmp_path / "first"
+    _run(first, synthetic_data_dir, "iterations=2", "val_every=2")
+    (best,) = (first / "checkpoints").glob("best-*.ckpt")
+    cfg = compose_config(
+        "train", [*TINY, "iterations=4", "val_every=2", f"ckpt_path={best}"],
+        tmp_path / "second", synthetic_data_dir,
+    )  # fmt: skip
+    with pytest.raises(CheckpointError, match="weights only"):
+        train(cfg)
+
+
+def test_cuda_random_state_is_saved_and_restored(train_cfg):
+    """On a GPU, dropout masks come from the CUDA generator: a resume restores it too."""
+    if not torch.cuda.is_available():
+        pytest.skip("needs CUDA (the CPU generator's round trip is in tests/test_resume.py)")
+    from src.lit.factory import build_datamodule, build_module
+
+    cfg = train_cfg(*TINY[1:])
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    module = build_module(cfg, dm).cuda()
+    torch.cuda.manual_seed_all(7)
+    ckpt: dict = {}
+    module.on_save_checkpoint(ckpt)
+    assert len(ckpt["rng"]["cuda"]) == torch.cuda.device_count()
+    expected = torch.rand(4, device="cuda")
+    torch.rand(100, device="cuda")  # move the generator on, as training would
+    module.on_load_checkpoint(ckpt)
+    assert torch.equal(torch.rand(4, device="cuda"), expected)

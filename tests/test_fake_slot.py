@@ -1,0 +1,116 @@
+"""The discriminator's real and fake sequences, with `adversarial.reference_fake_slot` off (the
+paper) and on (the reference code, protocol section 6.5).
+
+Every frame of the batch holds its own frame index (observed frames 0..49, future 50..74), so a
+sequence reads as the list of frames it is made of. The reference's fake sample is w[0..48],
+w[50], then the 25 predictions; its real sample is w[0..74] in both modes.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import lightning as L
+import pytest
+import torch
+
+from src.lit.factory import build_datamodule, build_module
+from src.lit.predictor import MotionPredictor
+
+OBSERVED, FUTURE = 50, 25
+TRUE_FRAMES = list(range(OBSERVED + FUTURE))
+# The slot of the last observed frame (49) holds the first future frame (50) in the reference.
+REFERENCE_FAKE_PREFIX = [*range(OBSERVED - 1), OBSERVED]
+
+
+def frame_batch(batch: int, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+    frames = torch.arange(OBSERVED + FUTURE, dtype=torch.float32)
+    frames = frames.view(1, -1, 1).expand(batch, -1, dim).clone()
+    return frames[:, :OBSERVED], frames[:, OBSERVED:]
+
+
+def frames_of(sequence: torch.Tensor) -> list[int]:
+    """The frame index held in each slot (all samples and dimensions agree)."""
+    assert torch.equal(sequence, sequence[:1, :, :1].expand_as(sequence))
+    return [int(v) for v in sequence[0, :, 0]]
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_sequence_real_is_the_ground_truth_in_both_modes(reference):
+    observed, future = frame_batch(2, 3)
+    module = SimpleNamespace(reference_fake_slot=reference)
+    real = MotionPredictor._sequence(module, observed, future)
+    assert frames_of(real) == TRUE_FRAMES
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_sequence_fake_moves_the_slot_only_with_the_switch(reference):
+    observed, future = frame_batch(2, 3)
+    prediction = -1 - torch.arange(FUTURE, dtype=torch.float32).view(1, -1, 1).expand(2, -1, 3)
+    module = SimpleNamespace(reference_fake_slot=reference)
+    fake = frames_of(MotionPredictor._sequence(module, observed, future, prediction))
+    prefix = REFERENCE_FAKE_PREFIX if reference else list(range(OBSERVED))
+    assert fake == prefix + [-1 - k for k in range(FUTURE)]
+    # A prediction that happens to be a copy of the ground truth is still a fake sample.
+    copy = MotionPredictor._sequence(module, observed, future, future.clone())
+    assert frames_of(copy) == prefix + list(range(OBSERVED, OBSERVED + FUTURE))
+
+
+class _OneBatch(torch.utils.data.Dataset):
+    def __init__(self, batch: dict[str, torch.Tensor]):
+        self.batch = batch
+
+    def __len__(self) -> int:
+        return 1
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        return self.batch
+
+
+@pytest.mark.parametrize("reference", [False, True])
+def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, reference):
+    """Through training_step: the D step's real and fake samples and the G step's fake one."""
+    cfg = train_cfg(
+        "model=conv_s2s",
+        "model.net.nf=2",
+        "model.net.d_z=8",
+        "adversarial=li2018",
+        "adversarial.discriminator.nf=2",
+        "adversarial.discriminator.d_z=8",
+        "adversarial.discriminator.d_fc=4",
+        f"adversarial.reference_fake_slot={str(reference).lower()}",
+    )
+    L.seed_everything(0)
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    module = build_module(cfg, dm)
+    assert module.adversarial and module.reference_fake_slot is reference
+    seen: list[torch.Tensor] = []
+    module.discriminator.register_forward_pre_hook(
+        lambda _, args: seen.append(args[0].detach().clone())
+    )
+    # Four windows: the first two for the D step, the other two for the G step (chunk(2)).
+    observed, future = frame_batch(4, dm.normalizer.pose_dim)
+    batch = {"observed": observed, "future": future, "action": torch.zeros(4, dtype=torch.long)}
+    loader = torch.utils.data.DataLoader(_OneBatch(batch), batch_size=None)
+    trainer = L.Trainer(
+        accelerator="cpu",
+        max_epochs=1,
+        limit_val_batches=0,
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+    )
+    trainer.fit(module, train_dataloaders=loader)
+
+    real_d, fake_d, fake_g = seen
+    assert frames_of(real_d) == TRUE_FRAMES
+    prefix = REFERENCE_FAKE_PREFIX if reference else list(range(OBSERVED))
+    for fake in (fake_d, fake_g):
+        assert fake.shape[1] == OBSERVED + FUTURE
+        assert frames_of(fake[:, :OBSERVED]) == prefix
+    # Around the last observed frame (the slots of the issue: 46..52).
+    assert frames_of(real_d[:, 46:53]) == [46, 47, 48, 49, 50, 51, 52]
+    assert frames_of(fake_d[:, 46:50]) == ([46, 47, 48, 50] if reference else [46, 47, 48, 49])

@@ -1,0 +1,387 @@
+"""Errors a user can cause become one line naming the problem and the fix; labels and published
+numbers tell the truth; every entry point answers --help with its own options (issue #13)."""
+
+from __future__ import annotations
+
+import json
+import re
+import sys
+import zipfile
+from pathlib import Path
+
+import hydra
+import lightning as L
+import pytest
+from omegaconf import OmegaConf
+
+from src.data.errors import DataError
+from src.lit.factory import ConfigError
+from tests.conftest import CONF, compose_config, run_module
+
+
+def _error_line(proc) -> str:
+    """The one `error: ...` line of a command that failed the project's way (status 2)."""
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
+    return line
+
+
+# ---------------------------------------------------------------- row 5: damaged archive member
+def _damaged_h36m_zip(path: Path) -> str:
+    """A small h3.6m.zip whose second member has bytes flipped mid-file (stored, so the flip
+    lands in the member's data and only the CRC tells); returns that member's name."""
+    line = ",".join(["0.1234567"] * 99) + "\n"
+    names = ["h3.6m/dataset/S1/walking_1.txt", "h3.6m/dataset/S1/walking_2.txt"]
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+        for name in names:
+            zf.writestr(name, line * 40)
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(names[1])
+    raw = bytearray(path.read_bytes())
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+    middle = start + info.compress_size // 2
+    raw[middle : middle + 8] = bytes(b ^ 0xFF for b in raw[middle : middle + 8])
+    path.write_bytes(bytes(raw))
+    return names[1]
+
+
+def test_damaged_archive_member_is_a_data_error_naming_archive_member_and_fix(tmp_path):
+    from src.data.archive import unpack_archive
+
+    archive = tmp_path / "h3.6m.zip"
+    member = _damaged_h36m_zip(archive)
+    data = tmp_path / "data"
+    with pytest.raises(DataError) as info:
+        unpack_archive(archive, data, "h36m")
+    message = str(info.value)
+    assert "\n" not in message
+    assert str(archive) in message and member in message
+    assert "download h3.6m.zip again" in message and "MANIFEST" in message
+    assert list(data.iterdir()) == []  # nothing half-unpacked is left
+
+
+def test_cli_damaged_archive_is_one_line(tmp_path):
+    archive = tmp_path / "h3.6m.zip"
+    member = _damaged_h36m_zip(archive)
+    proc = run_module(
+        "src.eval",
+        "model=zero_velocity",
+        "data=h36m",
+        f"data.archive={archive}",
+        data_dir=tmp_path / "data",
+        log_dir=tmp_path / "out",
+    )
+    line = _error_line(proc)
+    assert member in line and "download h3.6m.zip again" in line
+
+
+# ------------------------------------------------------------ row 6: nothing to train
+def test_cli_training_a_baseline_is_refused_before_anything_is_written(
+    tmp_path, synthetic_data_dir
+):
+    proc = run_module(
+        "src.train",
+        "model=zero_velocity",
+        "data=synthetic",
+        data_dir=synthetic_data_dir,
+        log_dir=tmp_path,
+    )
+    line = _error_line(proc)
+    assert line == (
+        "error: zero_velocity has no trainable parameters, so there is nothing to train; "
+        "evaluate it with `python -m src.eval model=zero_velocity data=synthetic` instead."
+    )
+    # Nothing of the run's own (Hydra's record of a refused run, .hydra/ and the log, is the
+    # business of the run-folder rules, issue #13 row 11).
+    written = [p for p in tmp_path.rglob("*") if p.is_file() and ".hydra" not in p.parts]
+    assert [p.name for p in written if p.suffix != ".log"] == []
+
+
+@pytest.mark.parametrize("overrides", [["model=running_avg_2", "adversarial=none"],
+                                       ["model=running_avg_4"]])  # fmt: skip
+def test_training_a_running_average_is_refused(overrides, train_cfg):
+    from src.lit.validation import validate_train_config
+
+    with pytest.raises(ConfigError, match=r"running_avg_\d has no trainable parameters.*src\.eval"):
+        validate_train_config(train_cfg(*overrides))
+
+
+# ------------------------------------------------------------ row 7: published numbers, titles
+def test_published_numbers_only_beside_results_on_their_dataset():
+    from src.reporting.published import published_beside, published_for
+
+    ref = {"paper": "martinez2017", "method": "zero_velocity"}
+    assert published_for(ref, "synthetic") == (None, None)
+    assert published_for(ref, "cmu") == (None, None)  # Martinez published no CMU numbers
+    table, label = published_for(ref, "h36m")
+    assert label == "martinez2017 zero_velocity" and table["walking"][80] == 0.39
+    per_dataset = {"h36m": ref, "cmu": {"paper": "li2018", "method": "rrnn"}}
+    assert published_for(per_dataset, "cmu")[1] == "li2018 rrnn"
+    assert published_for(per_dataset, "synthetic") == (None, None)
+    stored = {"published": {"average": {"80": 0.4}}}  # a results.json table
+    assert published_beside(stored, "synthetic") is None
+    assert published_beside(stored, "h36m") == {"average": {"80": 0.4}}
+
+
+@pytest.fixture(scope="module")
+def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
+    from src.eval import load_for_eval
+
+    cfg = compose_config(
+        "visualize",
+        ["model=zero_velocity", "data=synthetic", "trainer=cpu"],
+        tmp_path_factory.mktemp("eval"),
+        synthetic_data_dir,
+    )
+    dm, module, model_cfg, dataset = load_for_eval(cfg)
+    L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False).test(
+        module, datamodule=dm, verbose=False
+    )
+    return dm, module, model_cfg, dataset
+
+
+def test_eval_tables_of_synthetic_data_carry_no_published_numbers(synthetic_zero_velocity):
+    from src.eval import build_tables
+
+    dm, module, model_cfg, dataset = synthetic_zero_velocity
+    assert dataset == "synthetic" and dm.dataset_name == "h36m"  # H3.6M format, not H3.6M
+    euler, mpjpe = build_tables(module, dm, model_cfg, dataset)
+    assert euler.published is None and euler.published_label is None
+    assert "on synthetic" in euler.title and "h36m" not in euler.title
+    assert "published" not in euler.to_markdown().lower()
+
+
+def test_visualize_title_names_the_real_dataset(synthetic_zero_velocity):
+    from src.visualize import window_rows
+
+    dm, module, _, _ = synthetic_zero_velocity
+    _, _, what = window_rows(dm, module, "walking", observed_shown=5)
+    assert " on synthetic: walking, window 0" in what
+    assert "h36m" not in what
+
+
+# ------------------------------------------------------------ row 9: misspelt keys
+@pytest.mark.parametrize("entry", ["src.train", "src.eval", "src.visualize"])
+def test_cli_misspelt_key_names_the_close_matches(entry, tmp_path, synthetic_data_dir):
+    proc = run_module(
+        entry,
+        "data=synthetic",
+        *([] if entry == "src.train" else ["model=zero_velocity"]),
+        "trainer.max_step=3",
+        data_dir=synthetic_data_dir,
+        log_dir=tmp_path,
+    )
+    line = _error_line(proc)
+    assert line.startswith("error: trainer.max_step: no such key. Did you mean +trainer.max_steps")
+    assert "Keys under trainer: accelerator, " in line
+    assert not list(tmp_path.rglob("checkpoints"))
+
+
+def test_misspelt_key_in_train_config_names_the_close_matches(monkeypatch, capsys):
+    """The same on the train config, in-process, through the entry points' decorator."""
+    from src.lit.validation import hydra_entry
+
+    called = []
+    entry = hydra_entry("train")(lambda cfg: called.append(cfg))
+    for argv, expected in [
+        (["trainr.max_steps=3"], "error: trainr.max_steps: no such key. Did you mean "
+                                 "trainer.max_steps?"),
+        (["model.net.kernl=[3,3]"], "error: model.net.kernl: no such key. Did you mean "
+                                    "model.net.kernel?"),
+        (["dta=cmu"], "error: dta: no such key. Did you mean data?"),
+        (["data=h36n"], "error: data=h36n: no such option of train. Did you mean data=h36m? "
+                        "Choose one of: cmu, h36m, synthetic."),
+    ]:  # fmt: skip
+        monkeypatch.setattr(sys, "argv", ["src.train", *argv])
+        with pytest.raises(SystemExit) as info:
+            entry()
+        assert info.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith(expected) and err.count("\n") == 1, err
+    assert not called
+
+
+def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic_data_dir):
+    proc = run_module(
+        "src.train",
+        "data=synthetic",
+        "+trainer.max_step=3",
+        data_dir=synthetic_data_dir,
+        log_dir=tmp_path,
+    )
+    line = _error_line(proc)
+    assert line.startswith(
+        "error: trainer.max_step is not an argument of lightning.pytorch.trainer.Trainer, so it "
+        "cannot be added. Did you mean trainer.max_steps"
+    )
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("+model.net.kernal=[3,3]", r"model\.net\.kernal is not an argument of .*ConvSeq2Seq.* "
+                                    r"model\.net\.kernel\?"),
+        ("+sampling.ete=0.5", r"sampling\.ete is not an argument of .*Constant.* sampling\.eta"),
+    ],
+)  # fmt: skip
+def test_added_keys_are_checked_against_their_constructor(override, message, train_cfg):
+    from src.lit.validation import validate_train_config
+
+    with pytest.raises(ConfigError, match=message):
+        validate_train_config(train_cfg(override))
+
+
+@pytest.mark.parametrize("experiment", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
+def test_every_shipped_config_passes_the_constructor_check(experiment, train_cfg):
+    from src.lit.validation import check_constructor_keys
+
+    check_constructor_keys(train_cfg(f"experiment={experiment}"))
+
+
+# ------------------------------------------------------------ row 10: --help
+def _help(entry: str, tmp_path) -> str:
+    proc = run_module(entry, "--help", data_dir=tmp_path, log_dir=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def _options(group: str) -> set[str]:
+    return {p.stem for p in (CONF / group).glob("*.yaml")}
+
+
+def test_train_help_lists_its_groups(tmp_path):
+    text = _help("src.train", tmp_path)
+    for group in ("data", "model", "sampling", "adversarial", "trainer", "experiment", "debug"):
+        line = next(x for x in text.splitlines() if x.startswith(f"{group}: "))
+        assert set(line.split(": ", 1)[1].split(", ")) == _options(group)
+
+
+@pytest.mark.parametrize("entry", ["src.eval", "src.visualize"])
+def test_eval_and_visualize_help_list_only_what_they_accept(entry, tmp_path):
+    text = _help(entry, tmp_path)
+    groups = text.split("== Config groups (group=option) ==")[1].split("==")[0]
+    listed = dict(re.findall(r"^(\w+): ([\w, ]+?)\s{2,}", groups, flags=re.M))
+    assert set(listed) == {"data", "model", "trainer"}
+    assert set(listed["data"].split(", ")) == _options("data")
+    models = set(listed["model"].split(", "))
+    assert models <= _options("model")
+    for model in models:  # only baselines: a trained model comes with ckpt_path=
+        net = OmegaConf.load(CONF / "model" / f"{model}.yaml").net._target_
+        assert hydra.utils.get_class(net).trainable is False
+    assert set(listed["trainer"].split(", ")) <= _options("trainer")
+    for refused in ("experiment", "debug", "hparams_search"):
+        assert refused not in text
+    assert "ckpt_path=" in text
+
+
+def test_plot_errors_help_lists_its_arguments(tmp_path):
+    text = _help("src.plot_errors", tmp_path)
+    for key in ("results=", "metric=", "action=", "labels=", "published=", "out="):
+        assert f"\n  {key}" in text
+
+
+def test_report_help_lists_its_arguments(tmp_path):
+    text = _help("src.report", tmp_path)
+    for option in ("--out", "--budget", "--datasets", "--protocols", "--readme"):
+        assert option in text
+
+
+def test_plot_errors_unknown_argument_names_the_close_one(capsys):
+    from src.plot_errors import main
+
+    with pytest.raises(SystemExit) as info:
+        main(["results=[a.json]", "metrc=mpjpe"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: unknown argument(s): metrc (did you mean metric?)")
+    assert err.count("\n") == 1
+
+
+# ------------------------------------------------------------ row 12: legends, mixed datasets
+def _results(path: Path, model: str, dataset: str, **provenance) -> Path:
+    table = {
+        "metric": "euler",
+        "unit": "rad",
+        "actions": ["walking"],
+        "values": {"walking": {"80": 0.3, "160": 0.5}},
+        "absent": {},
+        "average": {"values": {"80": 0.3, "160": 0.5}},
+        "published": {"average": {"80": 0.2, "160": 0.4}},
+        "published_label": "martinez2017 zero_velocity",
+    }
+    prov = {"model": model, "dataset": dataset, **provenance}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"provenance": prov, "tables": [table]}))
+    return path
+
+
+def test_plot_errors_refuses_results_of_different_datasets(tmp_path, capsys):
+    from src.plot_errors import main
+
+    cmu = _results(tmp_path / "cmu" / "results.json", "zero_velocity", "cmu")
+    h36m = _results(tmp_path / "h36m" / "results.json", "zero_velocity", "h36m")
+    with pytest.raises(SystemExit) as info:
+        main([f"results=[{cmu},{h36m}]", f"out={tmp_path / 'e.png'}"])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: the results come from different datasets (cmu, h36m)")
+    assert err.count("\n") == 1 and not (tmp_path / "e.png").exists()
+
+
+def test_plot_errors_legend_tells_runs_apart(tmp_path):
+    from src.plot_errors import legend_labels
+
+    a = _results(tmp_path / "a" / "results.json", "conv_s2s", "cmu", run_name="li2018_cmu")
+    b = _results(tmp_path / "b" / "results.json", "conv_s2s", "cmu", run_name="li2018_cmu")
+    c = _results(tmp_path / "c" / "results.json", "zero_velocity", "cmu")
+    d = _results(tmp_path / "d" / "results.json", "zero_velocity", "cmu", eval_protocol="random")
+    e = _results(tmp_path / "e" / "results.json", "zero_velocity", "cmu", eval_protocol="srnn")
+    paths = [a, b, c, d, e]
+    labels = legend_labels([json.loads(p.read_text()) for p in paths], paths)
+    assert labels[:3] == ["li2018_cmu (cmu), a", "li2018_cmu (cmu), b", "zero_velocity (cmu)"]
+    assert labels[3:] == ["zero_velocity (cmu), random", "zero_velocity (cmu), srnn"]
+    assert len(set(labels)) == len(labels)
+
+
+def test_plot_errors_draws_distinct_legend_entries(tmp_path):
+    from src.plot_errors import plot_errors
+
+    runs = [_results(tmp_path / f"{i}" / "results.json", "zero_velocity", "h36m") for i in "ab"]
+    out = plot_errors(runs, tmp_path / "e.png", published=True)
+    assert out.is_file()
+    with pytest.raises(ConfigError, match="more than once"):
+        plot_errors(runs, tmp_path / "f.png", labels=["x", "x"])
+
+
+def test_plot_errors_shows_no_published_curve_for_synthetic_results(tmp_path, monkeypatch):
+    import src.plot_errors as plot_errors_module
+
+    drawn, draw = {}, plot_errors_module.error_vs_horizon
+
+    def capture(curves, **kwargs):
+        drawn["labels"] = [label for label, _ in curves]
+        return draw(curves, **kwargs)
+
+    monkeypatch.setattr(plot_errors_module, "error_vs_horizon", capture)
+    runs = [_results(tmp_path / "s" / "results.json", "zero_velocity", "synthetic")]
+    plot_errors_module.plot_errors(runs, tmp_path / "e.png", published=True)
+    assert drawn["labels"] == ["zero_velocity (synthetic)"]
+
+
+# ------------------------------------------------------------ row 13: non-editable install
+def test_installed_without_the_configs_is_one_line(tmp_path, monkeypatch, capsys):
+    """`pip install .` leaves the configs behind: simulated by pointing the config folder at
+    a place that does not exist, as it is beside an installed copy in site-packages."""
+    import src.lit.validation as validation
+    from src.eval import main
+
+    validation.check_installation()  # the clone has its configs
+    monkeypatch.setattr(validation, "CONF_DIR", tmp_path / "site-packages" / "conf")
+    monkeypatch.setattr(sys, "argv", ["src.eval", "model=zero_velocity", "data=synthetic"])
+    with pytest.raises(SystemExit) as info:
+        main()
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "pip install -e ." in err
+    assert str(tmp_path / "site-packages" / "conf") in err
