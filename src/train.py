@@ -99,7 +99,6 @@ def train(cfg: DictConfig) -> float:
     if rank_zero_only.rank == 0:  # DDP's other ranks start later, in the same folder
         _check_unused(out_dir)
     L.seed_everything(cfg.seed, workers=True)
-    torch.use_deterministic_algorithms(True, warn_only=True)
 
     dm = build_datamodule(cfg.data)
     dm.prepare_data()
