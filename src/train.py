@@ -33,7 +33,6 @@ from src.lit.checkpoints import (
     TrainingInterrupted,
     check_compatible,
     check_normalizer,
-    previous_best,
     read_checkpoint,
     require_resumable,
 )
@@ -170,10 +169,7 @@ def train(cfg: DictConfig) -> float:
     }
     best = checkpoints.best_model_score
     score = float(best) if best is not None else final["euler_avg"]
-    best_path = checkpoints.best_model_path
-    prev_score, prev_path = previous_best(ckpt)
-    if math.isfinite(prev_score) and not prev_score >= score:  # best epoch before the resume
-        score, best_path = prev_score, prev_path
+    best_path = checkpoints.best_model_path  # of the whole run: BestCheckpoint carries it over
     if trainer.is_global_zero and not cfg.trainer.get("fast_dev_run"):
         summary = {
             "best_val_euler_avg": score,

@@ -181,15 +181,6 @@ class BestCheckpoint(ModelCheckpoint):
             super()._remove_checkpoint(trainer, filepath)
 
 
-def previous_best(ckpt: dict | None) -> tuple[float, str]:
-    """(best score, its file) recorded in a checkpoint's BestCheckpoint state."""
-    for name, state in (ckpt or {}).get("callbacks", {}).items():
-        score = state.get("best_model_score") if "Checkpoint" in name else None
-        if score is not None and math.isfinite(float(score)):
-            return float(score), str(state.get("best_model_path", ""))
-    return math.inf, ""
-
-
 # ---------------------------------------------------------------------------- reading
 def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)

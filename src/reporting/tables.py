@@ -85,6 +85,30 @@ def printed_scope(published: Mapping[str, Mapping] | None) -> str:
     return f"all {n} actions" if n else "all of its actions"
 
 
+def _printed_average_row(printed: Mapping, horizons_ms, decimals: int) -> list[str]:
+    """The paper's average as printed, under ours (nothing when the paper prints none)."""
+    if not printed:
+        return []
+    cells = ["published average, as printed"] + [
+        fmt(printed.get(ms), decimals) for ms in horizons_ms
+    ]
+    return ["| " + " | ".join(cells) + " |"]
+
+
+def _footer(table, average_note: str, notes: Mapping[str, int]) -> list[str]:
+    """Notes under a table: published values, what the average covers, why actions are absent."""
+    lines = []
+    if table.published is not None:
+        lines += _published_notes(
+            table.published_label, len(table.evaluated), printed_scope(table.published)
+        )
+    lines.append(f"- Average: {average_note}.")
+    for reason, number in notes.items():
+        who = [a for a in table.actions if table.absent.get(a) == reason]
+        lines.append(f"- [{number}] absent ({', '.join(who)}): {reason}")
+    return lines
+
+
 def _published_notes(label: str | None, n_evaluated: int, scope: str) -> list[str]:
     label = label or "published"
     return [
@@ -215,21 +239,12 @@ class ResultTable:
             cells = [f"**{AVERAGE}**"]
             cells += [self._cell(average[ms], AVERAGE, ms) for ms in self.horizons_ms]
             lines.append("| " + " | ".join(cells) + " |")
-            printed = self.published_as_printed()
-            if printed:
-                cells = ["published average, as printed"]
-                cells += [fmt(printed.get(ms), self.decimals) for ms in self.horizons_ms]
-                lines.append("| " + " | ".join(cells) + " |")
+            lines += _printed_average_row(
+                self.published_as_printed(), self.horizons_ms, self.decimals
+            )
 
         lines.append("")
-        if self.published is not None:
-            lines += _published_notes(
-                self.published_label, len(self.evaluated), printed_scope(self.published)
-            )
-        lines.append(f"- Average: {self._average_note()}.")
-        for reason, number in notes.items():
-            who = [a for a in self.actions if self.absent.get(a) == reason]
-            lines.append(f"- [{number}] absent ({', '.join(who)}): {reason}")
+        lines += _footer(self, self._average_note(), notes)
         return "\n".join(lines) + "\n"
 
     def to_csv(self) -> str:
@@ -410,25 +425,16 @@ class SeedTable:
             cells = [f"**{AVERAGE}**"]
             cells += [self._cell(average[ms], same.get(ms)) for ms in self.horizons_ms]
             lines.append("| " + " | ".join(cells) + " |")
-            printed = self.published_as_printed()
-            if printed:
-                cells = ["published average, as printed"]
-                cells += [fmt(printed.get(ms), self.decimals) for ms in self.horizons_ms]
-                lines.append("| " + " | ".join(cells) + " |")
+            lines += _printed_average_row(
+                self.published_as_printed(), self.horizons_ms, self.decimals
+            )
         lines.append("")
         if self.n > 1:
             lines.append(
                 f"- ±: sample standard deviation over the {self.n} seeds (n - 1 denominator); "
                 "the average row's is that of the per-seed averages."
             )
-        if self.published is not None:
-            lines += _published_notes(
-                self.published_label, len(self.evaluated), printed_scope(self.published)
-            )
-        lines.append(f"- Average: {self.tables[0]._average_note()}.")
-        for reason, number in notes.items():
-            who = [a for a in self.actions if self.absent.get(a) == reason]
-            lines.append(f"- [{number}] absent ({', '.join(who)}): {reason}")
+        lines += _footer(self, self.tables[0]._average_note(), notes)
         return "\n".join(lines) + "\n"
 
 
