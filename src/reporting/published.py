@@ -131,3 +131,32 @@ def published_beside(table: dict, dataset: str) -> dict | None:
     if dataset not in published_datasets():
         return None
     return table.get("published")
+
+
+# Cells the shared notes (docs/published_results.md) call slips of the paper, kept as printed:
+# (paper, method) -> {action: why}. A published average that includes one is flagged, not fixed.
+KNOWN_SLIPS: dict[tuple[str, str], dict[str, str]] = {
+    ("li2018", "lstm3lr"): {"smoking": "Li Table 1 repeats SRNN's smoking row"},
+    ("martinez2017", "residual_sup_ma"): {
+        "smoking": "Martinez Table 1's smoking row repeats the eating row"
+    },
+    ("martinez2017", "zero_velocity"): {
+        "greeting": "Martinez Table 2's greeting and phoning rows are equal and neither matches "
+        "what the protocol gives on the data",
+        "phoning": "Martinez Table 2's phoning row repeats greeting",
+    },
+    ("martinez2017", "residual_unsup_ma"): {
+        "sitting": "Martinez Table 2's 80 ms average disagrees with its rows (sitting is the "
+        "likely bad cell)"
+    },
+}
+
+
+def known_slips(label: str | None, actions: list[str]) -> dict[str, str]:
+    """{action: why} for the `actions` whose published values under `label` ("<paper> <method>",
+    as published_for returns it) include a known slip of the paper."""
+    if not label or " " not in label:
+        return {}
+    paper, method = label.split(" ", 1)
+    slips = KNOWN_SLIPS.get((paper, method), {})
+    return {a: slips[a] for a in actions if a in slips}
