@@ -1,7 +1,7 @@
 """Performance suite: training speed, inference latency/throughput, FLOP/s, data, eval cost.
 
     python benchmarks/benchmark.py [--device cpu|cuda] [--smoke] [--json out.json]
-                                   [--markdown docs/performance.md]
+                                   [--markdown docs/performance.md] [--ref 58436ca]
 
 Synthetic tensors of the real H3.6M shapes (D = 54 used of F = 99 columns, 50 -> 25 frames).
 Training drives the real `MotionPredictor.training_step` through a minimal manual loop (the
@@ -9,6 +9,12 @@ Lightning hooks it calls are bound to plain PyTorch equivalents), so the losses,
 discriminator/generator alternation and the optimisers are the project's own. Every time is
 the median over repeats, A/B variants interleaved so background load hits both alike.
 --smoke runs each measurement a couple of times (CI, < 60 s); numbers are then meaningless.
+
+Beside the bare loop it times `python -m src.train` itself (Trainer, callbacks, logging, data;
+benchmarks/train_cli.py) for li2018_h36m and martinez2017_res_sup, and li2018_h36m at the
+reference commit `--ref` side by side, and fills the issue's targets table with what it measured
+("not measured" for a device it did not run on). That part needs the real data (MOTION_ARCHIVES
+or an unpacked MOTION_DATA_DIR) and is skipped by --smoke and --no-train-cli.
 """
 
 from __future__ import annotations
@@ -245,6 +251,57 @@ def bench_data(batches: int) -> dict:
         return {"note": f"skipped: {type(err).__name__}: {err}"}
 
 
+def bench_train_cli(device: torch.device, ref: str, iterations: int) -> dict:
+    """it/s of `python -m src.train` itself: li2018_h36m here and at `ref`, side by side, and
+    martinez2017_res_sup here (benchmarks/train_cli.py: two run lengths, start-up cancels)."""
+    from benchmarks.train_cli import measure
+
+    trainer = "gpu" if device.type == "cuda" else "cpu"
+    threads = torch.get_num_threads()
+    conv = measure(ref, "li2018_h36m", trainer, iterations, iterations // 3, threads)
+    gru = measure(None, "martinez2017_res_sup", trainer, iterations, iterations // 3, threads)
+    return {
+        "device": trainer,
+        "iterations": iterations,
+        "ref": ref,
+        "conv_adv": conv["this checkout"],
+        "conv_adv_ref": conv.get(f"commit {ref}"),
+        "gru": gru["this checkout"],
+    }
+
+
+def issue_targets(device: torch.device, cli: dict, inference: dict) -> list[list[str]]:
+    """Rows [measurement, now, target] of the speed issue's table, from this run only."""
+    on_gpu = device.type == "cuda"
+    here = "GPU" if on_gpu else "CPU"
+    absent = f"not measured (this run was on the {here})"
+    skipped = "not measured (src.train timing skipped)"
+
+    def its(key: str, gpu_row: bool) -> str:
+        if gpu_row != on_gpu:
+            return absent
+        return f"{cli[key]:.2f} it/s" if cli else skipped
+
+    cpu_ratio = skipped
+    if cli and not on_gpu and cli.get("conv_adv_ref"):
+        cpu_ratio = (
+            f"{cli['conv_adv']:.2f} it/s, {cli['conv_adv'] / cli['conv_adv_ref']:.2f}x commit "
+            f"{cli['ref']} ({cli['conv_adv_ref']:.2f} it/s) side by side"
+        )
+    elif on_gpu:
+        cpu_ratio = absent
+    lat = f"{inference['latency_ms_median_recompute']:.1f} ms {here} (recompute), " + (
+        f"{inference['latency_ms_median_inc']:.1f} ms (incremental)"
+    )
+    return [
+        ["conv_s2s + regulariser, batch 16, `src.train`, GPU", its("conv_adv", True), ">= 35 it/s"],
+        ["gru_s2s, batch 16, `src.train`, GPU", its("gru", True), ">= 100 it/s"],
+        ["conv_s2s + regulariser, batch 16, `src.train`, CPU", cpu_ratio, ">= 2x commit 58436ca"],
+        ["gru_s2s, batch 16, `src.train`, CPU", its("gru", False), "-"],
+        ["prediction, batch 1, 25 frames", lat, "<= 10 ms CPU, <= 2 ms GPU"],
+    ]
+
+
 # ---------------------------------------------------------------------------- report
 def markdown(r: dict) -> str:
     c, t, inf = r["context"], r["training_it_s"], r["inference"]
@@ -289,6 +346,24 @@ def markdown(r: dict) -> str:
         f"| validation / (val_every={r['val_every']} train its, conv_adv batch "
         f"{r['batches'][0]}) | {r['validation_fraction']:.4f} |",
     ]
+    cli = r.get("train_cli") or {}
+    if cli:
+        B0 = r["batches"][0]
+        lines += [
+            f"| `src.train` it/s, {cli['device']}: li2018_h36m (conv_s2s + adversarial) | "
+            f"{cli['conv_adv']:.2f} |",
+            f"| `src.train` it/s, {cli['device']}: li2018_h36m at commit {cli['ref']} | "
+            + (f"{cli['conv_adv_ref']:.2f} |" if cli.get("conv_adv_ref") else "- |"),
+            f"| `src.train` it/s, {cli['device']}: martinez2017_res_sup (gru_s2s) | "
+            f"{cli['gru']:.2f} |",
+            f"| `src.train` / bare loop, conv_s2s + adversarial, batch {B0} | "
+            f"{cli['conv_adv'] / t[f'conv_adv@{B0}']:.2f} |",
+            f"| `src.train` / bare loop, gru_s2s, batch {B0} | {cli['gru'] / t[f'gru@{B0}']:.2f} |",
+        ]
+    lines += ["", "The speed issue's targets, measured by this run:", ""]
+    lines += ["| measurement | now | target |", "|---|---|---|"]
+    for name, now, goal in r.get("issue_targets", []):
+        lines.append(f"| {name} | {now} | {goal} |")
     targets = r["targets"]
     lines += ["", "| target | measured | met |", "|---|---|---|"]
     for name, (value, ok) in targets.items():
@@ -336,6 +411,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--markdown", type=Path, help="also write the report to this file")
     ap.add_argument("--val-every", type=int, default=1000, help="conf/train.yaml val_every")
     ap.add_argument("--readme", type=Path, help="put the headline numbers in this README's block")
+    ap.add_argument("--ref", default="58436ca", help="commit src.train is compared with")
+    ap.add_argument("--cli-iterations", type=int, default=60, help="src.train run length")
+    ap.add_argument("--no-train-cli", action="store_true", help="skip timing src.train")
     args = ap.parse_args(argv)
     device = torch.device(args.device)
     if device.type == "cuda" and not torch.cuda.is_available():
@@ -358,6 +436,9 @@ def main(argv: list[str] | None = None) -> dict:
     speedup = train_its[f"conv_shared_masks@{B0}"] / train_its[f"conv_recompute@{B0}"]
     default_speedup = train_its[f"conv@{B0}"] / train_its[f"conv_recompute@{B0}"]
     lat = inference["latency_ms_median_inc"]
+    cli = {}
+    if not (smoke or args.no_train_cli):
+        cli = bench_train_cli(device, args.ref, args.cli_iterations)
     r = {
         "command": "python benchmarks/benchmark.py "
         + " ".join(sys.argv[1:] if argv is None else argv),
@@ -374,6 +455,8 @@ def main(argv: list[str] | None = None) -> dict:
         "validation_s": val_s,
         "val_every": args.val_every,
         "validation_fraction": val_frac,
+        "train_cli": cli,
+        "issue_targets": issue_targets(device, cli, inference),
         "targets": {
             "latency batch 1 <= 10 ms (incremental, median)": (f"{lat:.1f} ms", lat <= 10),
             f"train iteration batch {B0} >= 2x recompute (shared dropout masks)": (

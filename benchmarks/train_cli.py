@@ -43,6 +43,51 @@ def commit_of(tree: Path) -> str:
     return out.stdout.decode().strip()
 
 
+def measure(
+    ref: str | None,
+    experiment: str,
+    device: str = "cpu",
+    iterations: int = 60,
+    short: int = 20,
+    threads: int = 1,
+    repeats: int = 1,
+) -> dict[str, float]:
+    """Steady-state it/s of `src.train experiment=<experiment>` in this checkout (key "this
+    checkout") and, with `ref`, at that commit (key "commit <ref>"), runs alternating."""
+    if not 0 < short < iterations:
+        raise SystemExit("error: need 0 < short < iterations")
+    trees = {"this checkout": ROOT}
+    tmp = Path(tempfile.mkdtemp(prefix="train_cli_"))
+    if ref:
+        ref_tree = tmp / "ref"
+        subprocess.run(["git", "worktree", "add", "-f", "--detach", str(ref_tree), ref],
+                       cwd=ROOT, check=True, capture_output=True)  # fmt: skip
+        trees[f"commit {ref}"] = ref_tree
+    base = [
+        f"experiment={experiment}",
+        "data.allow_partial=true",
+        f"trainer={device}",
+        "media_every=0",
+        "trainer.enable_progress_bar=false",
+    ]
+    walls: dict[tuple[str, int], list[float]] = {}
+    try:
+        for rep in range(repeats):
+            for n in (short, iterations):
+                for name, tree in trees.items():
+                    out = tmp / f"{len(walls)}_{rep}_{n}"
+                    over = [*base, f"iterations={n}", f"val_every={n}"]
+                    walls.setdefault((name, n), []).append(run_once(tree, over, out, threads))
+    finally:
+        if ref:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tmp / "ref")],
+                           cwd=ROOT, capture_output=True)  # fmt: skip
+    return {
+        name: (iterations - short) / (min(walls[(name, iterations)]) - min(walls[(name, short)]))
+        for name in trees
+    }
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ref", default="58436ca", help="commit to compare with ('' for none)")
@@ -54,40 +99,15 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--markdown", type=Path)
     args = ap.parse_args()
-    if not 0 < args.short < args.iterations:
-        raise SystemExit("error: need 0 < --short < --iterations")
-
-    trees = {"this checkout": ROOT}
-    tmp = Path(tempfile.mkdtemp(prefix="train_cli_"))
-    if args.ref:
-        ref_tree = tmp / "ref"
-        subprocess.run(["git", "worktree", "add", "-f", "--detach", str(ref_tree), args.ref],
-                       cwd=ROOT, check=True, capture_output=True)  # fmt: skip
-        trees[f"commit {args.ref}"] = ref_tree
-    base = [
-        f"experiment={args.experiment}",
-        "data.allow_partial=true",
-        f"trainer={args.device}",
-        "media_every=0",
-        "trainer.enable_progress_bar=false",
-    ]
-    walls: dict[tuple[str, int], list[float]] = {}
-    try:
-        for rep in range(args.repeats):
-            for n in (args.short, args.iterations):
-                for name, tree in trees.items():
-                    out = tmp / f"{len(walls)}_{rep}_{n}"
-                    over = [*base, f"iterations={n}", f"val_every={n}"]
-                    walls.setdefault((name, n), []).append(run_once(tree, over, out, args.threads))
-    finally:
-        if args.ref:
-            subprocess.run(["git", "worktree", "remove", "--force", str(tmp / "ref")],
-                           cwd=ROOT, capture_output=True)  # fmt: skip
-
-    speed = {}
-    for name in trees:
-        long_, short = min(walls[(name, args.iterations)]), min(walls[(name, args.short)])
-        speed[name] = (args.iterations - args.short) / (long_ - short)
+    speed = measure(
+        args.ref,
+        args.experiment,
+        args.device,
+        args.iterations,
+        args.short,
+        args.threads,
+        args.repeats,
+    )
     lines = [
         "# Training speed through `src.train`",
         "",
