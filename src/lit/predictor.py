@@ -90,7 +90,7 @@ class MotionPredictor(L.LightningModule):
         self.run_info = run_info or {}
         # Training iterations done, saved in the state dict so eta and logging resume exactly.
         self.register_buffer("iteration", torch.zeros((), dtype=torch.long))
-        self._recent_losses: deque[dict[str, float]] = deque(maxlen=5)
+        self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
 
         skeleton = Skeleton.load(dataset)
         self.euler = EulerAngleError(len(self.actions), future_len, dim_rule=dim_rule)
@@ -151,7 +151,7 @@ class MotionPredictor(L.LightningModule):
         optimizers = optimizers if isinstance(optimizers, list) else [optimizers]
         schedulers = self.lr_schedulers()
         schedulers = schedulers if isinstance(schedulers, list) else [schedulers]
-        logs: dict[str, float] = {"train/eta": eta}
+        logs: dict[str, float | Tensor] = {"train/eta": eta}
 
         if self.adversarial:
             # The discriminator and generator see different random batches (protocol §6.6);
@@ -177,7 +177,8 @@ class MotionPredictor(L.LightningModule):
             self.manual_backward(loss_d)
             opt_d.step()
             self.untoggle_optimizer(opt_d)
-            logs.update({"train/loss_d": loss_d.item(), "train/d_real": logit_real.mean().item()})
+            logs["train/loss_d"] = loss_d.detach()
+            logs["train/d_real"] = logit_real.mean().detach()
             observed, future, action = obs_g, fut_g, act_g
 
         opt_g = optimizers[0]
@@ -192,7 +193,7 @@ class MotionPredictor(L.LightningModule):
             # eq. (9), non-saturating form -log D(fake) as in the reference (protocol §6.5)
             loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
             loss_g = loss_g + self.lambda_adv * loss_adv
-            logs["train/loss_adv"] = loss_adv.item()
+            logs["train/loss_adv"] = loss_adv.detach()
         self._check_finite(loss_g=loss_g, loss_recon=loss_recon)
         opt_g.zero_grad()
         self.manual_backward(loss_g)
@@ -209,9 +210,9 @@ class MotionPredictor(L.LightningModule):
 
         logs.update(
             {
-                "train/loss_g": loss_g.item(),
-                "train/loss_recon": loss_recon.item(),
-                "train/loss_l2": loss_l2.item(),
+                "train/loss_g": loss_g.detach(),
+                "train/loss_recon": loss_recon.detach(),
+                "train/loss_l2": loss_l2.detach(),
                 "train/lr": opt_g.param_groups[0]["lr"],
             }
         )
@@ -221,12 +222,18 @@ class MotionPredictor(L.LightningModule):
         self.log("train/loss_recon_bar", loss_recon, prog_bar=True, logger=False)
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
 
+    def _recent(self) -> list[dict[str, float]]:
+        return [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
+
     def _check_finite(self, **losses: Tensor) -> None:
+        # One host sync for all losses (each is a stall of the launch queue on a GPU).
+        if bool(torch.isfinite(torch.stack([v.detach() for v in losses.values()])).all()):
+            return
         bad = {k: v.item() for k, v in losses.items() if not torch.isfinite(v)}
         if bad:
             raise NonFiniteLossError(
                 f"non-finite loss at training iteration {int(self.iteration)}: {bad}. "
-                f"Last finite losses (oldest first): {list(self._recent_losses) or 'none yet'}. "
+                f"Last finite losses (oldest first): {self._recent() or 'none yet'}. "
                 f"{self._last_checkpoint_note()} Lower the learning rate or check the data."
             )
 
@@ -296,7 +303,7 @@ class MotionPredictor(L.LightningModule):
                 f"non-finite weights after training iteration {int(self.iteration)} "
                 f"({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''}); no checkpoint was "
                 f"written from them. {self._last_checkpoint_note()} "
-                f"Last finite losses (oldest first): {list(self._recent_losses) or 'none yet'}."
+                f"Last finite losses (oldest first): {self._recent() or 'none yet'}."
             )
 
     def _last_checkpoint_note(self) -> str:

@@ -25,8 +25,11 @@ def one_hot_action(action: Tensor | None, num_actions: int, batch: int) -> Tenso
             f"action must be a LongTensor of shape ({batch},), "
             f"got {action.dtype} {tuple(action.shape)}"
         )
-    # Range check needs a device sync; skipped while tracing/compiling (export).
-    if batch and not (torch.jit.is_tracing() or torch.compiler.is_compiling()):
+    # The range check reads the labels on the host: free on the CPU, a sync per call on a GPU,
+    # where the labels come from the datamodule's own action list. Skipped while tracing or
+    # compiling (export).
+    checkable = action.device.type == "cpu"
+    if batch and checkable and not (torch.jit.is_tracing() or torch.compiler.is_compiling()):
         lo, hi = int(action.min()), int(action.max())
         if lo < 0 or hi >= num_actions:
             raise ValueError(f"action ids must lie in [0, {num_actions}), got [{lo}, {hi}]")
