@@ -138,3 +138,19 @@ def test_stream_cache_reuses_rows_across_calls_and_stays_bounded():
     # Pruned to rows built from frames still in the next window: the size stops growing.
     assert max(sizes[10:]) == max(sizes[15:])
     assert all(i >= start + 1 for i in cache[1].rows[0])
+
+
+def test_forward_reuses_rows_on_the_cpu_only(monkeypatch):
+    inc, ref, D = pair()
+    inc.eval(), ref.eval()
+    calls = []
+    original = inc.decode_incremental
+    monkeypatch.setattr(
+        inc, "decode_incremental", lambda *a, **k: calls.append(1) or original(*a, **k)
+    )
+    inc(torch.randn(2, 50, D), 5)
+    assert calls == [1]
+    if torch.cuda.is_available():  # on a GPU, recomputing was faster (docs/performance.md)
+        inc.cuda()
+        inc(torch.randn(2, 50, D, device="cuda"), 5)
+        assert calls == [1]

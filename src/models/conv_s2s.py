@@ -43,7 +43,8 @@ class ConvSeq2Seq(nn.Module):
         incremental: reuse the short-term CEM rows that consecutive windows share instead of
             re-encoding every window (IncrementalCEM). Used only where it gives the same
             numbers as recomputing: in eval mode, or in training when the CEM dropout is 0
-            (or `share_dropout_masks`). False always recomputes (the reference's way).
+            (or `share_dropout_masks`), and on the CPU only (slower than recomputing on a
+            GPU). False always recomputes (the reference's way).
         share_dropout_masks: also run incrementally in training with dropout > 0. A kept
             row then keeps the dropout mask it was drawn with, where recomputing draws a
             fresh mask per window: a (correlated-mask) variant of the reference, not the same
@@ -115,7 +116,9 @@ class ConvSeq2Seq(nn.Module):
         )
         mix = future is not None and eta != 1.0
 
-        if self.uses_incremental():
+        # Reusing rows pays on the CPU only: on an H100 it was slower than recomputing at batch
+        # 1 and 256 (docs/performance.md, shared measurements of 58436ca).
+        if self.uses_incremental() and observed.device.type == "cpu":
             return self.decode_incremental(observed, future_len, future, eta)
         z_l = self.long_encoder(observed[:, : self.observed_len - 1]) if self.long_term else None
         window = observed[:, -self.C :]  # frames 50-C .. 49
