@@ -108,6 +108,17 @@ def test_train_batches(synthetic):
     assert next(iter(dm.train_dataloader()))["observed"].shape == (8, 50, 54)
 
 
+def test_batches_are_pinned_only_for_a_gpu_trainer(synthetic):
+    from types import SimpleNamespace
+
+    assert not synthetic.train_dataloader().pin_memory  # no trainer attached
+    for device, pinned in (("cpu", False), ("cuda", True)):
+        root = SimpleNamespace(type=device)
+        synthetic.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=root))
+        assert synthetic.train_dataloader().pin_memory is pinned
+        assert synthetic.val_dataloader().pin_memory is pinned
+
+
 @pytest.mark.parametrize("protocol", ["random", "strided"])
 def test_other_eval_protocols(tmp_path, protocol):
     dm = SyntheticDataModule(

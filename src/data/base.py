@@ -318,7 +318,13 @@ class MotionDataModule(L.LightningDataModule):
             "num_workers": self.num_workers,
             "persistent_workers": self.num_workers > 0,
             "generator": torch.Generator().manual_seed(self.seed),
+            # Pinned batches let the Trainer's copy to the GPU run without blocking the host.
+            "pin_memory": self._on_gpu(),
         }
+
+    def _on_gpu(self) -> bool:
+        trainer = getattr(self, "trainer", None)
+        return trainer is not None and trainer.strategy.root_device.type == "cuda"
 
     def train_dataloader(self) -> DataLoader:
         self._require_setup()
