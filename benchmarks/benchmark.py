@@ -196,6 +196,25 @@ def bench_inference(device, repeats, big: int) -> dict:
     return out
 
 
+def bench_profile(device, B: int, steps: int, top: int = 8) -> list[list]:
+    """Where a conv_s2s + adversarial training step spends its time: the operators with the
+    most self time (torch.profiler), as [name, share of the step, calls per step]."""
+    from torch.profiler import ProfilerActivity, profile
+
+    m, data = module("conv_adv", device), batch(B, device, True)
+    m.training_step(data, 0)
+    activities = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    with profile(activities=activities) as prof:
+        for _ in range(steps):
+            m.training_step(data, 0)
+        sync(device)
+    key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    events = [e for e in prof.key_averages() if getattr(e, key) > 0]
+    total = sum(getattr(e, key) for e in events)
+    events.sort(key=lambda e: getattr(e, key), reverse=True)
+    return [[e.key, getattr(e, key) / total, e.count / steps] for e in events[:top]]
+
+
 def bench_matmul(device, n: int, repeats: int) -> float:
     a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
     a @ b
@@ -337,6 +356,11 @@ def markdown(r: dict) -> str:
             f"| data: train windows sampled/s | {d['windows_per_s']:.0f} |",
         ]
     lines.append(f"| data | {d['note']} |")
+    for name, share, calls in r.get("profile", []):
+        lines.append(
+            f"| share of a conv_s2s + adversarial step (batch {r['batches'][0]}), self time: "
+            f"`{name}` ({calls:.0f} calls) | {100 * share:.1f}% |"
+        )
     lines += [
         f"| validation pass (120 windows) s | {r['validation_s']:.3f} |",
         f"| validation / (val_every={r['val_every']} train its, conv_adv batch "
@@ -452,6 +476,7 @@ def main(argv: list[str] | None = None) -> dict:
         "matmul_gflops": matmul,
         "data": bench_data(3 if smoke else 200),
         "validation_s": val_s,
+        "profile": bench_profile(device, batches[0], 1 if smoke else 3),
         "val_every": args.val_every,
         "validation_fraction": val_frac,
         "train_cli": cli,
