@@ -746,6 +746,26 @@ def replace_block(path: Path, name: str, text: str) -> None:
     path.write_text(f"{head}{start}\n{text}\n{end}{tail}")
 
 
+def parse_notes(items: list[str], labels: list[str]) -> dict[str, str]:
+    """{label: text} from `--note LABEL=TEXT` items; a label may itself hold '=' (a group told
+    apart by a setting, "martinez2017_res_sup (data.future_len=10)"), so the longest label that
+    the item starts with wins."""
+    notes = {}
+    for item in items:
+        matches = [label for label in labels if item.startswith(f"{label}=")]
+        if not matches:
+            raise SystemExit(
+                f"error: --note {item!r}: expected EXPERIMENT=TEXT with EXPERIMENT one of the "
+                f"runs' experiments: {', '.join(labels)}"
+            )
+        label = max(matches, key=len)
+        text = item[len(label) + 1 :].strip()
+        if not text:
+            raise SystemExit(f"error: --note {item!r}: the text after '=' is empty")
+        notes[label] = text
+    return notes
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -804,12 +824,6 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(
                 f"error: --target {item!r}: expected DATASET=TOLERANCE, e.g. h36m=0.03"
             ) from None
-    notes = {}
-    for item in args.note:
-        label, sep, text = item.partition("=")
-        if not sep or not text.strip():
-            raise SystemExit(f"error: --note {item!r}: expected EXPERIMENT=TEXT")
-        notes[label] = text.strip()
     # Read before anything is written: the page and README block change the tree.
     commit = git_commit()
 
@@ -819,12 +833,7 @@ def main(argv: list[str] | None = None) -> int:
 
     runs = [load_run(path) for path in discover_runs(args.runs)]
     groups = group_runs(runs)  # from the configs alone: a bad --note fails before evaluating
-    unknown = sorted(set(notes) - {g.label for g in groups})
-    if unknown:
-        raise SystemExit(
-            f"error: --note for {', '.join(unknown)}: no such experiment among the runs "
-            f"(they are: {', '.join(g.label for g in groups)})"
-        )
+    notes = parse_notes(args.note, [g.label for g in groups])
     for index, run in enumerate(runs):
         evaluate_run(run, index, args.protocols, work)
         first = run["results"]["best"][args.protocols[0]]

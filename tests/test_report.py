@@ -18,6 +18,7 @@ from src.report import (
     group_runs,
     main,
     missed_targets,
+    parse_notes,
     readme_block,
     replace_block,
     summary_table,
@@ -424,7 +425,15 @@ def test_report_refuses_a_note_for_an_unknown_experiment_before_evaluating(tmp_p
     monkeypatch.setattr("src.report.checkpoint_iteration", lambda path: 1)
     monkeypatch.setattr("src.report.evaluate_run", pytest.fail)  # refused before evaluating
     make_run(tmp_path / "run", summary={"iterations": 1})
-    with pytest.raises(SystemExit, match="--note for li2018_cmu: no such experiment.*li2018_h36m"):
+    with pytest.raises(SystemExit, match="--note 'li2018_cmu=why'.*one of the runs.*li2018_h36m"):
         main([str(tmp_path / "run"), "--note", "li2018_cmu=why", "--out", str(tmp_path / "r.md")])
     with pytest.raises(SystemExit, match="expected DATASET=TOLERANCE"):
         main([str(tmp_path / "run"), "--target", "h36m=close"])
+
+
+def test_notes_for_labels_that_hold_an_equals_sign():
+    labels = ["m (data.future_len=10)", "m (data.future_len=25)", "li2018_h36m"]
+    notes = parse_notes(["m (data.future_len=10)=ten frames", "li2018_h36m= a = b "], labels)
+    assert notes == {"m (data.future_len=10)": "ten frames", "li2018_h36m": "a = b"}
+    with pytest.raises(SystemExit, match="empty"):
+        parse_notes(["li2018_h36m="], labels)
