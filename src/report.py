@@ -201,6 +201,14 @@ def checkpoint_iteration(path: Path) -> int | None:
     return None if iteration is None else int(iteration)
 
 
+def training_missing_files(path: Path) -> list[str]:
+    """The files the run's data copy lacked when it trained (training and test files; an
+    evaluation of the checkpoint sees only the test files)."""
+    from src.lit.checkpoints import read_checkpoint
+
+    return list(read_checkpoint(path).get("motion", {}).get("missing_files") or [])
+
+
 # ---------------------------------------------------------------------------- grouping
 def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
     out: dict[str, str] = {}
@@ -303,6 +311,7 @@ def load_run(path: Path) -> dict:
     summary = _load_yaml(path / "summary.yaml") or {}
     checkpoints, notes = find_checkpoints(path)
     iterations_of = {s: checkpoint_iteration(p) for s, p in checkpoints.items()}
+    train_missing = training_missing_files(checkpoints["last"])
     shown = path.relative_to(PROJECT_ROOT) if path.is_relative_to(PROJECT_ROOT) else path
     return {
         "path": str(shown),
@@ -312,6 +321,7 @@ def load_run(path: Path) -> dict:
         "iterations_of": iterations_of,
         "iterations": summary.get("iterations", iterations_of["last"]),
         "notes": notes,
+        "train_missing_files": train_missing,
         **{k: summary.get(k) for k in ("wall_time_s", "commit", "device")},
     }
 
@@ -500,7 +510,8 @@ def gap_lines(group: Group, selection: str, protocol: str, target: float | None)
 
 
 def _missing(group: Group) -> list[str]:
-    return sorted({m for r in group.runs for m in r.get("missing_files") or []})
+    keys = ("missing_files", "train_missing_files")
+    return sorted({m for r in group.runs for k in keys for m in r.get(k) or []})
 
 
 def training_data_line(group: Group, protocol: str) -> str | None:

@@ -384,7 +384,8 @@ def test_actions_without_training_files_are_named_and_left_out_of_a_second_gap()
 
     washwindow = [e.relpath for e in cmu_files(["washwindow"], "train")]
     directing = [e.relpath for e in cmu_files(["directing_traffic"], "train")][2:]
-    run = offset_run(0.0, "li2018_cmu", "cmu", missing=washwindow + directing, absent={})
+    run = offset_run(0.0, "li2018_cmu", "cmu", absent={})
+    run["train_missing_files"] = washwindow + directing  # as the training run recorded them
     # washwindow, evaluated without training data, is 0.5 worse than published everywhere.
     for table in run["results"]["best"]["srnn"]["tables"][:1]:
         for ms, value in table["values"]["washwindow"].items():
@@ -423,6 +424,7 @@ def test_published_rows_that_include_a_slip_of_the_paper_are_flagged():
 
 def test_report_refuses_a_note_for_an_unknown_experiment_before_evaluating(tmp_path, monkeypatch):
     monkeypatch.setattr("src.report.checkpoint_iteration", lambda path: 1)
+    monkeypatch.setattr("src.report.training_missing_files", lambda path: [])
     monkeypatch.setattr("src.report.evaluate_run", pytest.fail)  # refused before evaluating
     make_run(tmp_path / "run", summary={"iterations": 1})
     with pytest.raises(SystemExit, match="--note 'li2018_cmu=why'.*one of the runs.*li2018_h36m"):
