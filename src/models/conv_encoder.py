@@ -17,6 +17,8 @@ import math
 import torch
 from torch import Tensor, nn
 
+from src.models.dropout import Dropout
+
 PADDINGS = ("same", "valid")
 
 
@@ -122,7 +124,7 @@ class ConvEncoder(nn.Module):
                 nn.ZeroPad2d((left, right, top, bottom)),  # asymmetric, as TF SAME
                 nn.Conv2d(in_ch, out_ch, tuple(kernel), stride=stride, bias=False),
                 nn.LeakyReLU(0.2),
-                nn.Dropout(p),
+                Dropout(p),
             ]
             in_ch, h, w = out_ch, h_out, w_out
         self.convs = nn.Sequential(*layers)

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from src.models.conv_encoder import ConvEncoder, IncrementalCEM, conv_shapes, tf_init_
+from src.models.dropout import Dropout
 
 
 class ConvSeq2Seq(nn.Module):
@@ -93,7 +94,7 @@ class ConvSeq2Seq(nn.Module):
         self.decoder = nn.Sequential(
             nn.Linear(2 * d_z if long_term else d_z, d_dec),
             nn.LeakyReLU(0.2),
-            nn.Dropout(decoder_dropout),
+            Dropout(decoder_dropout),
             nn.Linear(d_dec, pose_dim),
         )
         tf_init_(self.decoder)
