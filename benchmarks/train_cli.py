@@ -39,8 +39,9 @@ def run_once(tree: Path, overrides: list[str], out: Path, threads: int) -> float
 
 
 def commit_of(tree: Path) -> str:
-    out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True)
-    return out.stdout.decode().strip()
+    # "-dirty" when tracked files differ from the commit: the numbers are then not its.
+    cmd = ["git", "describe", "--always", "--dirty", "--abbrev=7", "--exclude=*"]
+    return subprocess.run(cmd, cwd=tree, capture_output=True, text=True).stdout.strip()
 
 
 def measure(
