@@ -194,19 +194,16 @@ def find_checkpoint(run: Path) -> Path:
     return find_checkpoints(run)[0]["best"]
 
 
-def checkpoint_iteration(path: Path) -> int | None:
+def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
+    """The checkpoint's training iteration, and the files the run's data copy lacked when it
+    trained (training and test files; an evaluation of the checkpoint sees only the test
+    files). One read of the file for both."""
     from src.lit.checkpoints import read_checkpoint
 
-    iteration = read_checkpoint(path)["state_dict"].get("iteration")
-    return None if iteration is None else int(iteration)
-
-
-def training_missing_files(path: Path) -> list[str]:
-    """The files the run's data copy lacked when it trained (training and test files; an
-    evaluation of the checkpoint sees only the test files)."""
-    from src.lit.checkpoints import read_checkpoint
-
-    return list(read_checkpoint(path).get("motion", {}).get("missing_files") or [])
+    ckpt = read_checkpoint(path)
+    iteration = ckpt["state_dict"].get("iteration")
+    missing = list(ckpt.get("motion", {}).get("missing_files") or [])
+    return None if iteration is None else int(iteration), missing
 
 
 # ---------------------------------------------------------------------------- grouping
@@ -310,8 +307,9 @@ def load_run(path: Path) -> dict:
     config.setdefault("run_name", path.parent.name)
     summary = _load_yaml(path / "summary.yaml") or {}
     checkpoints, notes = find_checkpoints(path)
-    iterations_of = {s: checkpoint_iteration(p) for s, p in checkpoints.items()}
-    train_missing = training_missing_files(checkpoints["last"])
+    facts = {s: checkpoint_facts(p) for s, p in checkpoints.items()}
+    iterations_of = {s: iteration for s, (iteration, _) in facts.items()}
+    train_missing = facts["last"][1]
     shown = path.relative_to(PROJECT_ROOT) if path.is_relative_to(PROJECT_ROOT) else path
     return {
         "path": str(shown),

@@ -423,8 +423,7 @@ def test_published_rows_that_include_a_slip_of_the_paper_are_flagged():
 
 
 def test_report_refuses_a_note_for_an_unknown_experiment_before_evaluating(tmp_path, monkeypatch):
-    monkeypatch.setattr("src.report.checkpoint_iteration", lambda path: 1)
-    monkeypatch.setattr("src.report.training_missing_files", lambda path: [])
+    monkeypatch.setattr("src.report.checkpoint_facts", lambda path: (1, []))
     monkeypatch.setattr("src.report.evaluate_run", pytest.fail)  # refused before evaluating
     make_run(tmp_path / "run", summary={"iterations": 1})
     with pytest.raises(SystemExit, match="--note 'li2018_cmu=why'.*one of the runs.*li2018_h36m"):
