@@ -512,6 +512,32 @@ def gap_lines(group: Group, selection: str, protocol: str, target: float | None)
     return lines
 
 
+def comparison_lines(groups: list[Group], protocol: str) -> list[str]:
+    """Runs of one experiment that differ in a setting (a reference switch, a budget, the
+    training length of the future): each later group's Euler average minus the first group's,
+    per horizon and checkpoint selection, on the horizons both have."""
+    siblings: dict[tuple[str, str], list[Group]] = {}
+    for group in groups:
+        siblings.setdefault((group.run_name, group.dataset), []).append(group)
+    lines = []
+    for base, *others in (members for members in siblings.values() if len(members) > 1):
+        for other in others:
+            for selection in SELECTIONS:
+                a = seed_table(base, selection, protocol, "euler")
+                b = seed_table(other, selection, protocol, "euler")
+                head = f"- {other.label} minus {base.label}, {SELECTION_LABELS[selection]}"
+                if a.evaluated != b.evaluated:
+                    lines.append(f"{head}: not compared, they were evaluated on other actions.")
+                    continue
+                mean_a, mean_b = a.average() or {}, b.average() or {}
+                common = [ms for ms in HORIZONS if ms in mean_a and ms in mean_b]
+                cells = ", ".join(
+                    f"{ms} ms {mean_b[ms].mean - mean_a[ms].mean:+.2f}" for ms in common
+                )
+                lines.append(f"{head} (seeds: {b.n} and {a.n}): {cells}.")
+    return lines
+
+
 def _missing(group: Group) -> list[str]:
     keys = ("missing_files", "train_missing_files")
     return sorted({m for r in group.runs for k in keys for m in r.get(k) or []})
@@ -664,6 +690,19 @@ def build_page(
             "MPJPE (mm on H3.6M, skeleton units on CMU):",
             "",
             summary_table(groups, baselines, "mpjpe", protocol),
+            "",
+        ]
+    compared = comparison_lines(groups, protocols[0])
+    if compared:
+        lines += [
+            f"## Settings compared ({PROTOCOLS.get(protocols[0], protocols[0])})",
+            "",
+            "Runs of one experiment that differ in one setting: the average Euler error over the "
+            "evaluated actions (mean over seeds), the later row minus the first; negative means "
+            "the later setting has the lower error. With one seed a side, compare a difference "
+            "with the spread between seeds of the rows that have several.",
+            "",
+            *compared,
             "",
         ]
     lines += ["## Per-experiment tables", ""]

@@ -11,6 +11,7 @@ import yaml
 
 from src.report import (
     build_page,
+    comparison_lines,
     discover_runs,
     find_checkpoint,
     find_checkpoints,
@@ -438,3 +439,24 @@ def test_notes_for_labels_that_hold_an_equals_sign():
     assert notes == {"m (data.future_len=10)": "ten frames", "li2018_h36m": "a = b"}
     with pytest.raises(SystemExit, match="empty"):
         parse_notes(["li2018_h36m="], labels)
+
+
+def test_settings_of_one_experiment_are_compared_on_their_common_horizons():
+    # offset_result puts every action at published + delta, and 560 ms (unpublished) at 1.0.
+    switched = offset_run(0.05)
+    switched["config"]["adversarial"]["reference_fake_slot"] = True
+    other_actions = offset_run(0.0, absent={**ABSENT, "walking": "x"})
+    other_actions["config"]["iterations"] = 8000
+    groups = group_runs([offset_run(0.01), switched, other_actions, offset_run(0.02, "li2018_cmu")])
+    lines = comparison_lines(groups, "srnn")
+    base = "li2018_h36m (adversarial.reference_fake_slot=False, iterations=4000)"
+    on = "li2018_h36m (adversarial.reference_fake_slot=True, iterations=4000)"
+    assert lines[0] == (
+        f"- {on} minus {base}, best (test-selected) (seeds: 1 and 1): 80 ms +0.04, "
+        "160 ms +0.04, 320 ms +0.04, 400 ms +0.04, 560 ms +0.00, 1000 ms +0.04."
+    )
+    assert lines[1].startswith(f"- {on} minus {base}, last (no test info) (seeds: 1 and 1)")
+    assert "not compared, they were evaluated on other actions" in lines[2]
+    assert len(lines) == 4  # li2018_cmu has no sibling
+    page = build_page(groups, [], ["srnn"], "cmd", None, "abc1234")
+    assert "## Settings compared" in page and lines[0] in page
