@@ -81,7 +81,16 @@ EXPERIMENT_PUBLISHED: dict[str, dict | None] = {
 
 # Config keys that do not make two runs different experiments: the seed, where files live,
 # the device, and how often files are written.
-IGNORED_KEYS = ("seed", "data.seed", "ckpt_path", "checkpoint_every", "media_every", "task_name")
+# A resumed run is the run it continues: `resume` and `ckpt_path` name where it came from.
+IGNORED_KEYS = (
+    "seed",
+    "data.seed",
+    "ckpt_path",
+    "resume",
+    "checkpoint_every",
+    "media_every",
+    "task_name",
+)
 IGNORED_PREFIXES = (
     "paths.",
     "trainer.",

@@ -186,6 +186,8 @@ def test_seeds_are_grouped_and_other_differences_are_not():
         {"config": _config(seed=4, fake_slot=True)},
         {"config": _config("li2018_cmu", "cmu", seed=2)},
     ]
+    # A run resumed from a checkpoint is a seed of its experiment like any other.
+    runs[1]["config"].update(resume="/runs/li2018_h36m_2", ckpt_path="/runs/x/last.ckpt")
     groups = group_runs(runs)
     assert [(g.label, g.dataset, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
         ("li2018_h36m (adversarial.reference_fake_slot=False)", "h36m", [1, 2]),
