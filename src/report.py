@@ -474,8 +474,14 @@ def _beyond(ours: dict[int, float], published: dict[int, float], target: float) 
     ]
 
 
+def _signed(difference: float) -> str:
+    """A difference at the printed precision; one that rounds to zero has no sign (+0.00, not
+    -0.00)."""
+    return f"{round(difference, 2) + 0.0:+.2f}"
+
+
 def _gap_text(ours: dict[int, float], published: dict[int, float], target: float | None) -> str:
-    cells = [f"{ms} ms {ours[ms] - published[ms]:+.2f}" for ms in HORIZONS if ms in published]
+    cells = [f"{ms} ms {_signed(ours[ms] - published[ms])}" for ms in HORIZONS if ms in published]
     text = ", ".join(cells)
     if target is not None:
         beyond = [f"{ms} ms" for ms in _beyond(ours, published, target)]
@@ -541,7 +547,7 @@ def comparison_lines(groups: list[Group], protocol: str) -> list[str]:
                 mean_a, mean_b = a.average() or {}, b.average() or {}
                 common = [ms for ms in HORIZONS if ms in mean_a and ms in mean_b]
                 cells = ", ".join(
-                    f"{ms} ms {mean_b[ms].mean - mean_a[ms].mean:+.2f}" for ms in common
+                    f"{ms} ms {_signed(mean_b[ms].mean - mean_a[ms].mean)}" for ms in common
                 )
                 lines.append(f"{head} (seeds: {b.n} and {a.n}): {cells}.")
     return lines

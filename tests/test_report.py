@@ -447,9 +447,14 @@ def test_settings_of_one_experiment_are_compared_on_their_common_horizons():
     # offset_result puts every action at published + delta, and 560 ms (unpublished) at 1.0.
     switched = offset_run(0.05)
     switched["config"]["adversarial"]["reference_fake_slot"] = True
+    # 0.004 below the first row: rounds to zero, printed without a sign as +0.00.
+    slightly_better = offset_run(0.006)
+    slightly_better["config"]["iterations"] = 6000
     other_actions = offset_run(0.0, absent={**ABSENT, "walking": "x"})
     other_actions["config"]["iterations"] = 8000
-    groups = group_runs([offset_run(0.01), switched, other_actions, offset_run(0.02, "li2018_cmu")])
+    groups = group_runs(
+        [offset_run(0.01), switched, other_actions, slightly_better, offset_run(0.02, "li2018_cmu")]
+    )
     lines = comparison_lines(groups, "srnn")
     base = "li2018_h36m (adversarial.reference_fake_slot=False, iterations=4000)"
     on = "li2018_h36m (adversarial.reference_fake_slot=True, iterations=4000)"
@@ -459,6 +464,9 @@ def test_settings_of_one_experiment_are_compared_on_their_common_horizons():
     )
     assert lines[1].startswith(f"- {on} minus {base}, last (no test info) (seeds: 1 and 1)")
     assert "not compared, they were evaluated on other actions" in lines[2]
-    assert len(lines) == 4  # li2018_cmu has no sibling
+    assert lines[4].endswith(
+        "): 80 ms +0.00, 160 ms +0.00, 320 ms +0.00, 400 ms +0.00, 560 ms +0.00, 1000 ms +0.00."
+    )
+    assert len(lines) == 6  # li2018_cmu has no sibling
     page = build_page(groups, [], ["srnn"], "cmd", None, "abc1234")
     assert "## Settings compared" in page and lines[0] in page
