@@ -38,12 +38,6 @@ def run_once(tree: Path, overrides: list[str], out: Path, threads: int) -> float
     return wall
 
 
-def commit_of(tree: Path) -> str:
-    # "-dirty" when tracked files differ from the commit: the numbers are then not its.
-    cmd = ["git", "describe", "--always", "--dirty", "--abbrev=7", "--exclude=*"]
-    return subprocess.run(cmd, cwd=tree, capture_output=True, text=True).stdout.strip()
-
-
 def measure(
     ref: str | None,
     experiment: str,
@@ -100,6 +94,9 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--markdown", type=Path)
     args = ap.parse_args()
+    sys.path.insert(0, str(ROOT))
+    from src.lit.factory import git_commit  # the label the runs' own provenance uses
+
     speed = measure(
         args.ref,
         args.experiment,
@@ -116,7 +113,7 @@ def main() -> None:
         f"{args.experiment} --device {args.device} --iterations {args.iterations} --short "
         f"{args.short} --threads {args.threads}`  ",
         f"Date: {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, this checkout at commit "
-        f"{commit_of(ROOT)}, {args.threads} torch thread(s), {os.cpu_count()} cores  ",
+        f"{git_commit()}, {args.threads} torch thread(s), {os.cpu_count()} cores  ",
         f"Steady-state iterations/s of `python -m src.train experiment={args.experiment} "
         f"data.allow_partial=true trainer={args.device}`, from runs of {args.short} and "
         f"{args.iterations} iterations (best of {args.repeats}).",
