@@ -493,21 +493,24 @@ def _gap_text(ours: dict[int, float], published: dict[int, float], target: float
     return text
 
 
+def _mean_average(table: SeedTable) -> dict[int, float]:
+    """The average row's mean over seeds per horizon; {} where an action has no values."""
+    return {ms: stat.mean for ms, stat in (table.average() or {}).items()}
+
+
 def gap_lines(group: Group, selection: str, protocol: str, target: float | None) -> list[str]:
     """Ours minus the published same-set average, per horizon (Euler, mean over seeds), with
     the verdict against the target; then the same over the actions that have training data in
     this copy, where some evaluated action has none."""
     table = seed_table(group, selection, protocol, "euler")
-    same, average = table.published_same_set(), table.average() or {}
+    same, average = table.published_same_set(), _mean_average(table)
     if not same or not average:
         return []
     where = f"({PROTOCOLS.get(protocol, protocol)})"
     label = table.published_label
     lines = [
         f"- {SELECTION_LABELS[selection]} minus published ({label}) over the same "
-        f"{len(table.evaluated)} actions {where}: "
-        + _gap_text({ms: s.mean for ms, s in average.items()}, same, target)
-        + "."
+        f"{len(table.evaluated)} actions {where}: " + _gap_text(average, same, target) + "."
     ]
     files = training_files(group.runs[0]["config"], table.evaluated, _missing(group))
     trained = [a for a in table.evaluated if files.get(a, (1, 1))[0] > 0]
@@ -544,11 +547,9 @@ def comparison_lines(groups: list[Group], protocol: str) -> list[str]:
                 if a.evaluated != b.evaluated:
                     lines.append(f"{head}: not compared, they were evaluated on other actions.")
                     continue
-                mean_a, mean_b = a.average() or {}, b.average() or {}
+                mean_a, mean_b = _mean_average(a), _mean_average(b)
                 common = [ms for ms in HORIZONS if ms in mean_a and ms in mean_b]
-                cells = ", ".join(
-                    f"{ms} ms {_signed(mean_b[ms].mean - mean_a[ms].mean)}" for ms in common
-                )
+                cells = ", ".join(f"{ms} ms {_signed(mean_b[ms] - mean_a[ms])}" for ms in common)
                 lines.append(f"{head} (seeds: {b.n} and {a.n}): {cells}.")
     return lines
 
@@ -593,7 +594,7 @@ def missed_targets(groups: list[Group], protocol: str, targets: dict) -> list[st
             continue
         for selection in SELECTIONS:
             table = seed_table(group, selection, protocol, "euler")
-            average = {ms: s.mean for ms, s in (table.average() or {}).items()}
+            average = _mean_average(table)
             if average and _beyond(average, table.published_same_set(), target):
                 missed.append(group.label)
                 break
