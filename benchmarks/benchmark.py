@@ -80,7 +80,7 @@ def module(kind: str, device: torch.device) -> MotionPredictor:
         net = conv_net(
             incremental=kind != "conv_recompute", share_dropout_masks=kind == "conv_shared_masks"
         )
-        opt, lambda_2, clip = partial(torch.optim.Adam, lr=5e-5), 1e-3, None
+        opt, lambda_2, clip = partial(torch.optim.Adam, lr=5e-5, fused=True), 1e-3, None
         if kind == "conv_adv":
             disc = Discriminator(D, A, seq_len=OBS + FUT)
     else:
@@ -98,7 +98,7 @@ def module(kind: str, device: torch.device) -> MotionPredictor:
         grad_clip_norm=clip,
         eta_schedule=lambda it: 0.9,  # eq. (10) mixing on
         discriminator=disc,
-        d_optimizer=partial(torch.optim.Adam, lr=5e-5) if disc is not None else None,
+        d_optimizer=partial(torch.optim.Adam, lr=5e-5, fused=True) if disc is not None else None,
         lambda_adv=0.01 if disc is not None else 0.0,
         lambda_2_d=1e-3,
     ).to(device)

@@ -74,6 +74,78 @@ def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
     assert seen["train/loss_adv"] > 0 and "train/loss_d" in seen
 
 
+def _gradients_of_one_step(module, batch, lambda_2, lambda_2_d):
+    """The gradients each optimiser would step with in one training_step (weights unchanged),
+    with the Lightning hooks it calls bound to plain PyTorch."""
+    module.lambda_2, module.lambda_2_d = lambda_2, lambda_2_d
+    opts, _ = module.configure_optimizers()
+    seen = {}
+    for name, opt, net in zip("gd", opts, (module.net, module.discriminator), strict=True):
+        opt.step = lambda net=net, name=name: seen.update(
+            {f"{name}.{k}": p.grad.clone() for k, p in net.named_parameters()}
+        )
+    module.optimizers, module.lr_schedulers = (lambda: opts), (lambda: [])
+    module.toggle_optimizer = module.untoggle_optimizer = lambda opt: None
+    module.manual_backward = lambda loss: loss.backward()
+    module.log = module.log_dict = lambda *a, **k: None
+    torch.manual_seed(0)  # the same dropout masks in every call
+    module.training_step(batch, 0)
+    return seen
+
+
+def test_l2_terms_reach_the_gradients_as_lambda_times_weight(train_cfg):
+    """The L2 terms of eq. (9) (generator) and of the discriminator's objective are added to the
+    gradients in closed form (add_l2_gradient_) instead of being backpropagated: the step
+    with them must see exactly lambda * w more on every weight tensor, and nothing on biases."""
+    cfg = train_cfg("model=conv_s2s", "adversarial=li2018")
+    dm, module = _module_and_data(cfg)
+    module.train()
+    batch = next(iter(dm.train_dataloader()))
+    lam_g, lam_d = 1e-2, 3e-2
+    without = _gradients_of_one_step(module, batch, 0.0, 0.0)
+    with_l2 = _gradients_of_one_step(module, batch, lam_g, lam_d)
+    params = {f"g.{k}": p for k, p in module.net.named_parameters()}
+    params |= {f"d.{k}": p for k, p in module.discriminator.named_parameters()}
+    assert set(without) == set(with_l2) == set(params)
+    for key, p in params.items():
+        lam = (lam_g if key.startswith("g.") else lam_d) if p.ndim > 1 else 0.0
+        expected = without[key] + lam * p.detach()
+        torch.testing.assert_close(with_l2[key], expected, rtol=1e-5, atol=1e-8, msg=key)
+        if lam:  # the term is large enough that leaving it out would fail the check above
+            assert (lam * p.detach()).abs().max() > 10 * (1e-5 * expected.abs().max() + 1e-8)
+
+
+def test_l2_gradient_is_the_gradient_of_the_logged_penalty():
+    """add_l2_gradient_ against autograd through sum(w^2)/2 over weight tensors, the value
+    l2_penalty logs (TF's l2_regularizer, protocol 6.6)."""
+    from src.lit.predictor import add_l2_gradient_, l2_penalty
+    from src.models.conv_encoder import ConvEncoder
+
+    torch.manual_seed(0)
+    net = ConvEncoder(20, 54, d_out=32, nf=4).eval()
+    x = torch.randn(3, 20, 54)
+    weights = [p for p in net.parameters() if p.ndim > 1]
+    penalty = sum(p.pow(2).sum() / 2 for p in weights)
+    assert l2_penalty(net).item() == pytest.approx(penalty.item(), rel=1e-6)
+    (net(x).square().mean() + 0.5 * penalty).backward()
+    expected = [p.grad.clone() for p in net.parameters()]
+    net.zero_grad()
+    net(x).square().mean().backward()
+    add_l2_gradient_(net, 0.5)
+    for got, want in zip((p.grad for p in net.parameters()), expected, strict=True):
+        torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-9)
+
+
+def test_float16_gradient_scaling_is_refused(train_cfg):
+    """The L2 gradient is added after backward: scaled (16-mixed) gradients would shrink it."""
+    from types import SimpleNamespace
+
+    _, module = _module_and_data(train_cfg("model=conv_s2s"))
+    module._trainer = SimpleNamespace(precision_plugin=SimpleNamespace(scaler=object()))
+    with pytest.raises(ValueError, match="16-mixed"):
+        module.on_fit_start()
+
+
 def test_without_regulariser_one_optimiser(train_cfg):
     cfg = train_cfg("model=conv_s2s", "adversarial=none")
     dm, module = _module_and_data(cfg)
