@@ -106,7 +106,15 @@ def module(kind: str, device: torch.device) -> MotionPredictor:
     opts, scheds = m.configure_optimizers()
     m.optimizers = lambda: opts
     m.lr_schedulers = lambda: scheds
-    m.toggle_optimizer = m.untoggle_optimizer = lambda opt: None
+    params = [p for o in opts for g in o.param_groups for p in g["params"]]
+
+    def toggle(opt):  # as Lightning's: the other optimisers' parameters get no gradients
+        own = {id(p) for g in opt.param_groups for p in g["params"]}
+        for p in params:
+            p.requires_grad_(id(p) in own)
+
+    m.toggle_optimizer = toggle
+    m.untoggle_optimizer = lambda opt: [p.requires_grad_(True) for p in params]
     m.manual_backward = lambda loss: loss.backward()
     m.clip_gradients = lambda opt, gradient_clip_val, gradient_clip_algorithm: (
         torch.nn.utils.clip_grad_norm_(m.net.parameters(), gradient_clip_val)
