@@ -188,8 +188,11 @@ class MotionPredictor(L.LightningModule):
             self.toggle_optimizer(opt_d)
             with torch.no_grad():
                 fake = self.net(obs_d, fut_d.shape[1], action=act_d, future=fut_d, eta=eta)
-            logit_real = self.discriminator(self._sequence(obs_d, fut_d), act_d)
-            logit_fake = self.discriminator(self._sequence(obs_d, fut_d, fake), act_d)
+            # Real and fake in one call: one weight gradient per layer instead of two summed.
+            real_and_fake = torch.cat(
+                [self._sequence(obs_d, fut_d), self._sequence(obs_d, fut_d, fake)]
+            )
+            logit_real, logit_fake = self.discriminator(real_and_fake, act_d.repeat(2)).chunk(2)
             # eq. (8): -log D(real) - log(1 - D(fake))
             loss_d_adv = F.binary_cross_entropy_with_logits(
                 logit_real, torch.ones_like(logit_real)
