@@ -105,7 +105,10 @@ def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, referen
     )
     trainer.fit(module, train_dataloaders=loader)
 
-    real_d, fake_d, fake_g = seen
+    # The D step judges real and fake in one call: the first half real, the second fake.
+    (real_and_fake, fake_g) = seen
+    real_d, fake_d = real_and_fake.chunk(2)
+    assert real_d.shape[0] == fake_d.shape[0] == fake_g.shape[0] == 2
     assert frames_of(real_d) == TRUE_FRAMES
     prefix = REFERENCE_FAKE_PREFIX if reference else list(range(OBSERVED))
     for fake in (fake_d, fake_g):
