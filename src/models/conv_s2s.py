@@ -18,6 +18,7 @@ change nothing, so they are omitted here; the generator receives no action label
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from src.models.conv_encoder import ConvEncoder, IncrementalCEM, conv_shapes, tf_init_
@@ -122,11 +123,12 @@ class ConvSeq2Seq(nn.Module):
         if self.uses_incremental() and observed.device.type == "cpu":
             return self.decode_incremental(observed, future_len, future, eta)
         z_l = self.long_encoder(observed[:, : self.observed_len - 1]) if self.long_term else None
+        decoder = self._decoder(z_l, B)
         window = observed[:, -self.C :]  # frames 50-C .. 49
         preds = []
         for k in range(future_len):
             z_s = self.short_encoder(window)  # eq. (4)
-            pred = self._step(z_l, z_s, window[:, -1])
+            pred = decoder(z_s) + window[:, -1]  # eq. (6), residual on the last frame
             preds.append(pred)
             if k == future_len - 1:
                 # The window after the last prediction is never read, so nothing is appended.
@@ -137,9 +139,22 @@ class ConvSeq2Seq(nn.Module):
             window = torch.cat([window[:, 1:], nxt.unsqueeze(1)], dim=1)  # eq. (5)
         return torch.stack(preds, dim=1) if preds else observed.new_zeros(B, 0, self.pose_dim)
 
-    def _step(self, z_l: Tensor | None, z_s: Tensor, last: Tensor) -> Tensor:
-        z = torch.cat([z_l, z_s], dim=1) if self.long_term else z_s
-        return self.decoder(z) + last  # eq. (6), residual on the window's last frame
+    def _decoder(self, z_l: Tensor | None, batch: int):
+        """The spatial decoder of eq. (3) as a function of z_s, for one sequence.
+
+        Its first layer is linear in [z_l, z_s]: W [z_l; z_s] + b = (W_l z_l + b) + W_s z_s,
+        and z_l is the same at every future step, so W_l z_l + b is computed once here instead
+        of at each of the 25 steps (the same numbers up to float rounding).
+        """
+        first, rest = self.decoder[0], self.decoder[1:]
+        d_l = 0 if z_l is None else z_l.shape[1]
+        h_l = (
+            first.bias.expand(batch, -1)
+            if z_l is None
+            else F.linear(z_l, first.weight[:, :d_l], first.bias)
+        )
+        w_s = first.weight[:, d_l:]
+        return lambda z_s: rest(h_l + F.linear(z_s, w_s))
 
     def _next_frame(self, pred: Tensor, future: Tensor, k: int, eta: float) -> Tensor:
         """eq. (10): mix x̂_{t+k} with its own ground truth x_{t+k} = future[:, k].
@@ -195,13 +210,14 @@ class ConvSeq2Seq(nn.Module):
             z_l = long.encode(ids[:-1])
         else:
             z_l = self.long_encoder(observed[:, :-1])
+        decoder = self._decoder(z_l, B)
         window = ids[-self.C :]
         # Transient ids continue below any already in the cache (a stream reuses it).
         next_id = min([-1, *(i - 1 for i in short.rows[0] if i < 0)])
         preds = []
         for k in range(future_len):
             z_s = short.encode(window)  # eq. (4)
-            pred = self._step(z_l, z_s, short.rows[0][window[-1]][:, 0])
+            pred = decoder(z_s) + short.rows[0][window[-1]][:, 0]  # eq. (6)
             preds.append(pred)
             if k == future_len - 1:
                 break  # as in forward(): the last window is never read
