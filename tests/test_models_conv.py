@@ -171,21 +171,14 @@ class Recorder(nn.Module):
         return window.new_zeros(window.shape[0], self.d_z)
 
 
-class ConstantStep(nn.Module):
-    """Stands in for the decoder: always outputs +1, so x̂ = last window frame + 1 (eq. 6)."""
-
-    def __init__(self, D):
-        super().__init__()
-        self.D = D
-
-    def forward(self, z):
-        return z.new_ones(z.shape[0], self.D)
-
-
 def scripted_model(offset=False, C=20, D=4):
+    """The decoder's weights set so that it always outputs +1: x̂ = last window frame + 1 (eq. 6)."""
     model = ConvSeq2Seq(pose_dim=D, num_actions=1, C=C, reference_eta_offset=offset)
     model.short_encoder = Recorder(512)
-    model.decoder = ConstantStep(D)
+    with torch.no_grad():
+        for p in model.decoder.parameters():
+            p.zero_()
+        model.decoder[-1].bias.fill_(1.0)
     return model
 
 
@@ -292,3 +285,54 @@ def test_gradients_reach_every_parameter():
     for module in (model, disc):
         for name, p in module.named_parameters():
             assert p.grad is not None and p.grad.abs().sum() > 0, name
+
+
+def _unpacked(enc, x):
+    """The encoder's output through the plain PyTorch convolutions (autograd on)."""
+    with torch.enable_grad():
+        return enc(x).detach()
+
+
+def assert_equal_to_rounding(got, want):
+    """Equal up to float32 rounding of sums over a few thousand terms, at want's scale."""
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5 * want.abs().max().item())
+
+
+@pytest.mark.parametrize("padding", ["same", "valid"])
+@pytest.mark.parametrize("B", [1, 16])
+def test_inference_with_packed_weights_equals_the_plain_convolutions(padding, B):
+    """In eval mode without autograd the CEM runs oneDNN convolutions on packed weights
+    (ConvEncoder.conv_act); the numbers are those of nn.Conv2d + leaky ReLU to rounding."""
+    if not torch.backends.mkldnn.is_available():
+        pytest.skip("this torch build has no oneDNN: the packed path is never taken")
+    torch.manual_seed(0)
+    enc = ConvEncoder(20, 54, padding=padding).eval()
+    x = torch.randn(B, 20, 54)
+    with torch.no_grad():
+        got = enc(x)
+    assert set(enc._packed) == {1, 2}, "the packed path was not taken"
+    assert_equal_to_rounding(got, _unpacked(enc, x))
+
+
+def test_packed_weights_follow_optimiser_steps_and_loaded_weights():
+    """Weights change under the packed copies in three ways a user meets: an optimiser step
+    (fused Adam updates in place without bumping version counters), load_state_dict, and a
+    train/eval round trip; each prediction must use the current weights."""
+    torch.manual_seed(0)
+    enc = ConvEncoder(20, 54).eval()
+    x = torch.randn(2, 20, 54)
+    opt = torch.optim.Adam(enc.parameters(), lr=0.1, fused=True)
+    with torch.no_grad():
+        before = enc(x)
+    enc(x).square().sum().backward()  # in eval mode: a fine-tuning step without dropout
+    opt.step()
+    with torch.no_grad():
+        after_step = enc(x)
+    assert (after_step - before).abs().max() > 1e-2
+    assert_equal_to_rounding(after_step, _unpacked(enc, x))
+
+    other = ConvEncoder(20, 54)
+    enc.load_state_dict(other.state_dict())
+    with torch.no_grad():
+        loaded = enc(x)
+    assert_equal_to_rounding(loaded, _unpacked(other.eval(), x))

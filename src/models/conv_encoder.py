@@ -16,6 +16,7 @@ import math
 
 import torch
 from torch import Tensor, nn
+from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from src.models.dropout import Dropout
 
@@ -82,6 +83,33 @@ def tf_init_(module: nn.Module) -> None:
                 nn.init.zeros_(m.bias)
 
 
+# Packed weights are repacked when a weight may have changed: its storage or version counter
+# (load_state_dict, in-place ops, .to()), a mode switch, or any optimiser step — the fused
+# optimisers update weights in place without bumping their version counters (torch 2.13).
+_optimizer_steps = 0
+
+
+def _count_step(*_) -> None:
+    global _optimizer_steps
+    _optimizer_steps += 1
+
+
+register_optimizer_step_post_hook(_count_step)
+
+
+def packed_inference(module: nn.Module, x: Tensor) -> bool:
+    """Whether ConvEncoder.conv_act may use oneDNN's packed-weight convolution on x: eval mode,
+    no autograd, float32 on the CPU, a build with oneDNN, not tracing or compiling (export)."""
+    return (
+        not module.training
+        and not torch.is_grad_enabled()
+        and x.device.type == "cpu"
+        and x.dtype == torch.float32
+        and torch.backends.mkldnn.is_available()
+        and not (torch.jit.is_tracing() or torch.compiler.is_compiling())
+    )
+
+
 class ConvEncoder(nn.Module):
     """CEM: 3 x [TF-padded Conv2d(no bias) -> leaky ReLU 0.2 -> dropout] -> flatten -> Linear.
 
@@ -131,6 +159,7 @@ class ConvEncoder(nn.Module):
         # Linear code, no activation (protocol §6.2 table, last row).
         self.fc = nn.Linear(self.flat_dim, d_out)
         tf_init_(self)
+        self._packed: dict[int, tuple[tuple, Tensor]] = {}  # see conv_act
 
     def forward(self, x: Tensor) -> Tensor:
         """(B, in_len, pose_dim) -> (B, d_out)."""
@@ -138,8 +167,44 @@ class ConvEncoder(nn.Module):
             raise ValueError(
                 f"ConvEncoder expects (B, {self.in_len}, {self.pose_dim}), got {tuple(x.shape)}"
             )
-        h = self.convs(x.unsqueeze(1))
+        h = x.unsqueeze(1)
+        for i, (pad, *_) in enumerate(self.layers):
+            h = self.conv_act(i, pad(h))
         return self.fc(torch.flatten(h, 1))
+
+    def train(self, mode: bool = True) -> ConvEncoder:
+        self._packed = {}
+        return super().train(mode)
+
+    @property
+    def layers(self) -> list[list[nn.Module]]:
+        """(pad, conv, act, dropout) of each of the three convolutions."""
+        mods = list(self.convs)
+        return [mods[i : i + 4] for i in range(0, len(mods), 4)]
+
+    def conv_act(self, i: int, x: Tensor) -> Tensor:
+        """Convolution i, its leaky ReLU and dropout, on an input already (TF-)padded.
+
+        Inference on the CPU (eval mode, no autograd) runs the convolution on weights packed
+        once for oneDNN, with the activation fused. Why: at batch 1 PyTorch picks its slow
+        convolution for these small inputs or repacks the weights on every call, and a
+        prediction makes 75 of these calls (benchmarks/benchmark.py, latency rows). The first
+        layer (one input channel) is faster unpacked. Results equal the unpacked path to float
+        rounding (tests/test_models_conv.py).
+        """
+        _, conv, act, drop = self.layers[i]
+        if i > 0 and packed_inference(self, x):
+            key = (conv.weight.data_ptr(), conv.weight._version, _optimizer_steps)
+            if self._packed.get(i, (None,))[0] != key:
+                w = torch.ops.mkldnn._reorder_convolution_weight(
+                    conv.weight, [0, 0], list(conv.stride), [1, 1], 1, list(x.shape)
+                )
+                self._packed[i] = (key, w)
+            return torch.ops.mkldnn._convolution_pointwise(
+                x, self._packed[i][1], None, [0, 0], list(conv.stride), [1, 1], 1,
+                "leaky_relu", [act.negative_slope], "",
+            )  # fmt: skip
+        return drop(act(conv(x)))
 
 
 class IncrementalCEM:
@@ -161,9 +226,7 @@ class IncrementalCEM:
 
     def __init__(self, encoder: ConvEncoder):
         self.encoder = encoder
-        mods = list(encoder.convs)
-        # (pad, conv, act, drop) per layer, as built by ConvEncoder
-        self.layers = [mods[i : i + 4] for i in range(0, len(mods), 4)]
+        self.layers = encoder.layers
         n = len(self.layers) + 1
         self.keys: list[dict[tuple, int]] = [{} for _ in range(n)]  # identity -> row id
         self.rows: list[dict[int, Tensor]] = [{} for _ in range(n)]  # row id -> (B, ch, W)
@@ -181,7 +244,7 @@ class IncrementalCEM:
         if len(frame_ids) != enc.in_len:
             raise ValueError(f"window has {len(frame_ids)} frames, the encoder {enc.in_len}")
         ids: list[int | None] = list(frame_ids)
-        for level, (pad, conv, act, drop) in enumerate(self.layers, start=1):
+        for level, (pad, conv, _, _) in enumerate(self.layers, start=1):
             left, right, top, _ = pad.padding
             (kh, _), (s, _) = conv.kernel_size, conv.stride
             n_in, n_out = len(ids), enc.shapes[level - 1][1]
@@ -222,9 +285,7 @@ class IncrementalCEM:
                 x = torch.stack(parts, dim=2)
                 if left or right:
                     x = nn.functional.pad(x, (left, right))
-                y = act(conv(x))
-                if drop.training and drop.p > 0:
-                    y = drop(y)
+                y = enc.conv_act(level - 1, x)
                 for j, row in zip(run, y.unbind(2), strict=True):
                     rows[out_ids[j]] = row
             ids = out_ids
