@@ -336,3 +336,19 @@ def test_packed_weights_follow_optimiser_steps_and_loaded_weights():
     with torch.no_grad():
         loaded = enc(x)
     assert_equal_to_rounding(loaded, _unpacked(other.eval(), x))
+
+
+def test_packed_weights_under_no_grad_in_training_keep_dropout():
+    """The discriminator step's no-grad generator pass runs in training mode: the packed path
+    must still apply dropout, with the masks the plain path draws from the same seed."""
+    torch.manual_seed(0)
+    enc = ConvEncoder(20, 54).train()
+    x = torch.randn(4, 20, 54)
+    torch.manual_seed(1)
+    with torch.no_grad():
+        packed = enc(x)
+    assert set(enc._packed) == {1, 2}, "the packed path was not taken"
+    torch.manual_seed(1)
+    assert_equal_to_rounding(packed, _unpacked(enc, x))
+    torch.manual_seed(2)
+    assert (_unpacked(enc, x) - packed).abs().max() > 1e-2  # other masks, other numbers

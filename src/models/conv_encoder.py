@@ -97,12 +97,11 @@ def _count_step(*_) -> None:
 register_optimizer_step_post_hook(_count_step)
 
 
-def packed_inference(module: nn.Module, x: Tensor) -> bool:
-    """Whether ConvEncoder.conv_act may use oneDNN's packed-weight convolution on x: eval mode,
-    no autograd, float32 on the CPU, a build with oneDNN, not tracing or compiling (export)."""
+def packed_inference(x: Tensor) -> bool:
+    """Whether ConvEncoder.conv_act may use oneDNN's packed-weight convolution on x: no
+    autograd, float32 on the CPU, a build with oneDNN, not tracing or compiling (export)."""
     return (
-        not module.training
-        and not torch.is_grad_enabled()
+        not torch.is_grad_enabled()
         and x.device.type == "cpu"
         and x.dtype == torch.float32
         and torch.backends.mkldnn.is_available()
@@ -185,25 +184,27 @@ class ConvEncoder(nn.Module):
     def conv_act(self, i: int, x: Tensor) -> Tensor:
         """Convolution i, its leaky ReLU and dropout, on an input already (TF-)padded.
 
-        Inference on the CPU (eval mode, no autograd) runs the convolution on weights packed
-        once for oneDNN, with the activation fused. Why: at batch 1 PyTorch picks its slow
-        convolution for these small inputs or repacks the weights on every call, and a
-        prediction makes 75 of these calls (benchmarks/benchmark.py, latency rows). The first
+        Without autograd on the CPU (prediction, and the generator's pass that makes the
+        discriminator step's fakes) the convolution runs on weights packed once for oneDNN,
+        with the activation fused. Why: PyTorch picks its slow convolution for the small inputs
+        of batch-1 prediction, or repacks the weights on every call, and a prediction makes 75
+        of these calls: 16.7 -> 10 ms at batch 1 on one thread (3% at batch 16). The first
         layer (one input channel) is faster unpacked. Results equal the unpacked path to float
-        rounding (tests/test_models_conv.py).
+        rounding, and dropout draws the same masks (tests/test_models_conv.py).
         """
         _, conv, act, drop = self.layers[i]
-        if i > 0 and packed_inference(self, x):
+        if i > 0 and packed_inference(x):
             key = (conv.weight.data_ptr(), conv.weight._version, _optimizer_steps)
             if self._packed.get(i, (None,))[0] != key:
                 w = torch.ops.mkldnn._reorder_convolution_weight(
                     conv.weight, [0, 0], list(conv.stride), [1, 1], 1, list(x.shape)
                 )
                 self._packed[i] = (key, w)
-            return torch.ops.mkldnn._convolution_pointwise(
+            y = torch.ops.mkldnn._convolution_pointwise(
                 x, self._packed[i][1], None, [0, 0], list(conv.stride), [1, 1], 1,
                 "leaky_relu", [act.negative_slope], "",
             )  # fmt: skip
+            return drop(y)
         return drop(act(conv(x)))
 
 

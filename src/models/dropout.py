@@ -23,5 +23,7 @@ class Dropout(nn.Dropout):
         if not self.training or x.device.type != "cpu" or not 0 < self.p < 1:
             return super().forward(x)
         keep = 1.0 - self.p
-        mask = torch.rand_like(x).lt_(keep).div_(keep)  # in place: one buffer, no bool copy
+        # In place: one buffer, no bool copy. rand, not rand_like: the mask is drawn in logical
+        # order whatever x's memory layout (oneDNN's packed path returns channels-last).
+        mask = torch.rand(x.shape, dtype=x.dtype, device=x.device).lt_(keep).div_(keep)
         return x * mask
