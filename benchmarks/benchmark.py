@@ -428,9 +428,13 @@ NOTES = [
     "- `forward()` reuses short-term rows (incremental) on the CPU only: on an H100 at commit",
     "  58436ca it was slower than recomputing at batch 1 and 256. The latency and throughput",
     "  rows call both paths directly, so they compare them on any device.",
-    "- Latency at batch 1 on CPU is dominated by per-op overhead of many small convolutions",
-    "  (PyTorch picks its slow im2col path for tiny inputs), not by FLOPs: compare achieved",
-    "  GFLOP/s with the matmul line.",
+    "- Without autograd on the CPU (prediction, validation, the discriminator step's generator",
+    "  pass) convolutions 2-3 run on oneDNN weights packed once (ConvEncoder.conv_act): at",
+    "  batch 1 PyTorch would pick its slow im2col path or repack the weights at every call.",
+    "  What is left at batch 1 is mostly the convolutions and reading the fully connected",
+    "  layers' weights once per decoding step (matrix-vector products bound by memory).",
+    "- The training step's optimisers are fused Adam, and the L2 terms of eq. (9) and of the",
+    "  discriminator are added to the gradients in closed form (src/lit/predictor.py).",
 ]
 
 
