@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 from torch.optim.optimizer import register_optimizer_step_post_hook
 
@@ -97,14 +98,17 @@ def _count_step(*_) -> None:
 register_optimizer_step_post_hook(_count_step)
 
 
+_ONEDNN = torch.backends.mkldnn.is_available()
+
+
 def packed_inference(x: Tensor) -> bool:
     """Whether ConvEncoder.conv_act may use oneDNN's packed-weight convolution on x: no
     autograd, float32 on the CPU, a build with oneDNN, not tracing or compiling (export)."""
     return (
-        not torch.is_grad_enabled()
+        _ONEDNN
+        and not torch.is_grad_enabled()
         and x.device.type == "cpu"
         and x.dtype == torch.float32
-        and torch.backends.mkldnn.is_available()
         and not (torch.jit.is_tracing() or torch.compiler.is_compiling())
     )
 
@@ -159,6 +163,10 @@ class ConvEncoder(nn.Module):
         self.fc = nn.Linear(self.flat_dim, d_out)
         tf_init_(self)
         self._packed: dict[int, tuple[tuple, Tensor]] = {}  # see conv_act
+        # (pad, conv, act, dropout) of each convolution, grouped once: conv_act runs 75 times
+        # per prediction.
+        mods = tuple(self.convs)
+        self.layers = tuple(mods[i : i + 4] for i in range(0, len(mods), 4))
 
     def forward(self, x: Tensor) -> Tensor:
         """(B, in_len, pose_dim) -> (B, d_out)."""
@@ -168,18 +176,12 @@ class ConvEncoder(nn.Module):
             )
         h = x.unsqueeze(1)
         for i, (pad, *_) in enumerate(self.layers):
-            h = self.conv_act(i, pad(h))
+            h = self.conv_act(i, F.pad(h, pad.padding))
         return self.fc(torch.flatten(h, 1))
 
     def train(self, mode: bool = True) -> ConvEncoder:
         self._packed = {}
         return super().train(mode)
-
-    @property
-    def layers(self) -> list[list[nn.Module]]:
-        """(pad, conv, act, dropout) of each of the three convolutions."""
-        mods = list(self.convs)
-        return [mods[i : i + 4] for i in range(0, len(mods), 4)]
 
     def conv_act(self, i: int, x: Tensor) -> Tensor:
         """Convolution i, its leaky ReLU and dropout, on an input already (TF-)padded.
@@ -204,8 +206,9 @@ class ConvEncoder(nn.Module):
                 x, self._packed[i][1], None, [0, 0], list(conv.stride), [1, 1], 1,
                 "leaky_relu", [act.negative_slope], "",
             )  # fmt: skip
-            return drop(y)
-        return drop(act(conv(x)))
+            return drop(y) if drop.training else y
+        y = act(conv(x))
+        return drop(y) if drop.training else y
 
 
 class IncrementalCEM:

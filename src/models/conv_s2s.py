@@ -146,7 +146,7 @@ class ConvSeq2Seq(nn.Module):
         and z_l is the same at every future step, so W_l z_l + b is computed once here instead
         of at each of the 25 steps (the same numbers up to float rounding).
         """
-        first, rest = self.decoder[0], self.decoder[1:]
+        first, act, drop, out = self.decoder
         d_l = 0 if z_l is None else z_l.shape[1]
         h_l = (
             first.bias.expand(batch, -1)
@@ -154,7 +154,12 @@ class ConvSeq2Seq(nn.Module):
             else F.linear(z_l, first.weight[:, :d_l], first.bias)
         )
         w_s = first.weight[:, d_l:]
-        return lambda z_s: rest(h_l + F.linear(z_s, w_s))
+
+        def decoder(z_s: Tensor) -> Tensor:
+            h = act(h_l + F.linear(z_s, w_s))
+            return out(drop(h) if drop.training else h)
+
+        return decoder
 
     def _next_frame(self, pred: Tensor, future: Tensor, k: int, eta: float) -> Tensor:
         """eq. (10): mix x̂_{t+k} with its own ground truth x_{t+k} = future[:, k].
