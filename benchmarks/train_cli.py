@@ -46,6 +46,7 @@ def measure(
     short: int = 20,
     threads: int = 1,
     repeats: int = 1,
+    overrides: tuple[str, ...] = (),
 ) -> dict[str, float]:
     """Steady-state it/s of `src.train experiment=<experiment>` in this checkout (key "this
     checkout") and, with `ref`, at that commit (key "commit <ref>"), runs alternating."""
@@ -64,6 +65,7 @@ def measure(
         f"trainer={device}",
         "media_every=0",
         "trainer.enable_progress_bar=false",
+        *overrides,
     ]
     walls: dict[tuple[str, int], list[float]] = {}
     runs = 0
@@ -98,6 +100,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--markdown", type=Path)
+    ap.add_argument("--override", action="append", default=[], help="extra src.train override")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
     from src.lit.factory import git_commit  # the label the runs' own provenance uses
@@ -110,17 +113,17 @@ def main() -> None:
         args.short,
         args.threads,
         args.repeats,
+        tuple(args.override),
     )
     lines = [
         "# Training speed through `src.train`",
         "",
-        f"Command: `python benchmarks/train_cli.py --ref {args.ref} --experiment "
-        f"{args.experiment} --device {args.device} --iterations {args.iterations} --short "
-        f"{args.short} --threads {args.threads}`  ",
+        f"Command: `python benchmarks/train_cli.py {' '.join(sys.argv[1:])}`  ",
         f"Date: {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, this checkout at commit "
         f"{git_commit()}, {args.threads} torch thread(s), {os.cpu_count()} cores  ",
         f"Steady-state iterations/s of `python -m src.train experiment={args.experiment} "
-        f"data.allow_partial=true trainer={args.device}`, from runs of {args.short} and "
+        f"data.allow_partial=true {' '.join([f'trainer={args.device}', *args.override])}`, "
+        f"from runs of {args.short} and "
         f"{args.iterations} iterations (best of {args.repeats}).",
         "",
         "| code | it/s | s/iteration |",
