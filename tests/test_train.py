@@ -205,3 +205,25 @@ def test_gru_s2s_fast_dev_run(overrides, train_cfg):
     dm, module = _module_and_data(cfg)
     assert module.adversarial == ("adversarial=li2018" in overrides)
     train(cfg)
+
+
+def test_evaluation_is_float32_under_bf16_autocast(train_cfg):
+    """trainer.precision=bf16-mixed trains under autocast, and Lightning also wraps validation
+    in it; the reported errors must be the float32 ones (bf16 moved them by up to 0.006 rad)."""
+    cfg = train_cfg("model=conv_s2s")
+    dm, module = _module_and_data(cfg)
+    module.eval()
+    torch.manual_seed(0)
+    with torch.no_grad():  # some weights far from zero, so rounding would show
+        for p in module.net.parameters():
+            p.mul_(4)
+    batch = next(iter(dm.val_dataloader()))
+    errors = []
+    for bf16 in (False, True):
+        with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            module._evaluate(batch)
+        errors.append(torch.nan_to_num(module.euler.compute(), nan=-1.0))
+        module.euler.reset()
+        module.mpjpe.reset()
+    assert (errors[0] > 0).any()
+    assert torch.equal(errors[0], errors[1])

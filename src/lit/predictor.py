@@ -279,6 +279,13 @@ class MotionPredictor(L.LightningModule):
         self._evaluate(batch)
 
     def _evaluate(self, batch: dict[str, Tensor]) -> None:
+        # Always in float32: under trainer.precision=bf16-mixed, Lightning's autocast would run
+        # the prediction and the metrics' rotations in bfloat16 and move reported errors by
+        # up to half their printed precision (0.01 rad).
+        with torch.autocast(batch["future"].device.type, enabled=False):
+            self._evaluate_float32(batch)
+
+    def _evaluate_float32(self, batch: dict[str, Tensor]) -> None:
         future = batch["future"]
         pred = self(batch["observed"], future.shape[1], action=batch["action"])
         pred_full = self.normalizer.unnormalize(pred)
