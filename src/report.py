@@ -91,6 +91,9 @@ IGNORED_KEYS = (
     "media_every",
     "task_name",
 )
+# Trainer keys that change the numbers (bf16-mixed autocast): runs that differ in them are
+# different settings, not seeds of one.
+COUNTED_TRAINER_KEYS = ("trainer.precision",)
 IGNORED_PREFIXES = (
     "paths.",
     "trainer.",
@@ -232,7 +235,8 @@ def identity(config: dict) -> dict[str, str]:
     return {
         k: v
         for k, v in _flatten(config).items()
-        if k not in IGNORED_KEYS and not k.startswith(IGNORED_PREFIXES)
+        if k not in IGNORED_KEYS
+        and (not k.startswith(IGNORED_PREFIXES) or k.startswith(COUNTED_TRAINER_KEYS))
     }
 
 

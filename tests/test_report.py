@@ -196,6 +196,18 @@ def test_seeds_are_grouped_and_other_differences_are_not():
     ]
 
 
+def test_trainer_precision_makes_another_setting_not_a_seed():
+    """Trainer keys are device settings, except trainer.precision: bf16-mixed runs are
+    compared with float32 ones, not averaged with them."""
+    runs = [{"config": _config(seed=s)} for s in (1, 2)]
+    runs[1]["config"]["trainer"]["precision"] = "bf16-mixed"
+    groups = group_runs(runs)
+    assert [(g.label, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
+        ("li2018_h36m (trainer.precision=None)", [1]),
+        ("li2018_h36m (trainer.precision=bf16-mixed)", [2]),
+    ]
+
+
 # --- the page from stored results ------------------------------------------------------------
 
 MS = [80, 160, 320, 400, 560, 1000]

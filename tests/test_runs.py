@@ -162,6 +162,7 @@ def test_resume_applies_length_and_trainer_overrides_on_top(tmp_path, synthetic_
         ("model.optimizer.lr=0.1", "model.optimizer.lr: checkpoint 0.01, command line 0.1"),
         ("data=cmu", "data=cmu: the run used data=synthetic"),
         ("model=conv_s2s", "model=conv_s2s: the run used model=gru_s2s"),
+        ("+trainer.precision=bf16-mixed", "trainer.precision: checkpoint absent, command line"),
     ],
 )
 def test_resume_with_other_settings_is_refused_naming_them(
@@ -171,6 +172,20 @@ def test_resume_with_other_settings_is_refused_naming_them(
     with pytest.raises(CheckpointError, match="with settings other than its run's") as err:
         _restore(tmp_path / "new", synthetic_data_dir, f"resume={run}", override)
     assert named in str(err.value)
+
+
+def test_trainer_options_beside_a_resume_keep_the_runs_precision(tmp_path, synthetic_data_dir):
+    """Trainer keys may change on resume (device settings), except trainer.precision, which
+    changes the numbers: a bf16-mixed run stays bf16-mixed under trainer=cpu, and a float32
+    run stays float32."""
+    bf16 = _fake_run(tmp_path / "bf16", synthetic_data_dir, *RUN, "+trainer.precision=bf16-mixed")
+    cfg, _ = _restore(tmp_path / "a", synthetic_data_dir, f"resume={bf16}", "trainer=cpu")
+    assert cfg.trainer.precision == "bf16-mixed" and cfg.trainer.accelerator == "cpu"
+    fp32 = _fake_run(tmp_path / "fp32", synthetic_data_dir, *RUN)
+    cfg, _ = _restore(tmp_path / "b", synthetic_data_dir, f"resume={fp32}", "trainer=cpu")
+    assert "precision" not in cfg.trainer
+    cfg, _ = _restore(tmp_path / "c", synthetic_data_dir, f"resume={fp32}", "trainer.devices=1")
+    assert cfg.trainer.devices == 1
 
 
 def test_run_without_recorded_options_compares_a_group_by_its_values(tmp_path, synthetic_data_dir):

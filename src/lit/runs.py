@@ -48,11 +48,17 @@ FREE = (
     "trainer",
     "data.num_workers",
 )
+# ... except these, which change the numbers (bf16-mixed autocast): a resume keeps the run's.
+COMPUTES = ("trainer.precision",)
 _ABSENT = object()
 
 
 def _under(key: str, prefixes: tuple[str, ...]) -> bool:
     return any(key == p or key.startswith(p + ".") for p in prefixes)
+
+
+def _free(key: str) -> bool:
+    return _under(key, FREE) and not _under(key, COMPUTES)
 
 
 # ------------------------------------------------------------------------------ run folders
@@ -190,7 +196,7 @@ def _leaves(root: DictConfig, path: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
 
     def walk(value: Any, key: str) -> None:
-        if _under(key, FROM_HERE + FREE):
+        if _under(key, FROM_HERE) or _free(key):
             return
         if isinstance(value, dict) and value:
             for k, v in value.items():
@@ -246,7 +252,7 @@ def _group_conflicts(
     """A config-group option beside a resume must be the run's own: compared by name where
     the run recorded its options (.hydra/hydra.yaml), else by the values it gives."""
     node_key = group.replace("/", ".")
-    if _under(node_key, FROM_HERE + FREE):
+    if _under(node_key, FROM_HERE) or _free(node_key):
         return []
     if run_choices is not None:
         if run_choices.get(group) != choices.get(group):
@@ -311,12 +317,18 @@ def restore_run(
         if key in choices:  # a config group: model=..., data=..., trainer=...
             conflicts += _group_conflicts(key, text, cfg, saved, choices, run_choices)
             node_key = key.replace("/", ".")
-            if _under(node_key, FREE):
+            if _free(node_key):
                 _set(restored, node_key, _raw(raw, node_key))
+                for key in COMPUTES:  # a trainer=... option brings the Trainer, not its numerics
+                    kept = _raw(OmegaConf.to_container(saved, resolve=False), key)
+                    if _under(key, (node_key,)) and kept is _ABSENT:
+                        _remove(restored, key)
+                    elif _under(key, (node_key,)):
+                        _set(restored, key, kept)
             continue
         if _under(key, FROM_HERE):
             continue
-        if _under(key, FREE):
+        if _free(key):
             if override.is_delete():
                 _remove(restored, key)
             else:
