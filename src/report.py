@@ -854,7 +854,8 @@ def main(argv: list[str] | None = None) -> int:
         "--datasets",
         nargs="*",
         default=None,
-        help="datasets for the baselines (default: those of the runs; none: no baselines)",
+        help="datasets for the baselines (default: those of the runs; `--datasets none` or "
+        "`--datasets` alone: no baselines)",
     )
     parser.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
     parser.add_argument(
@@ -915,7 +916,9 @@ def main(argv: list[str] | None = None) -> int:
 
     datasets = sorted({g.dataset for g in groups})
     baselines: list[dict] = []
-    for dataset in datasets if args.datasets is None else args.datasets:
+    if args.datasets is not None:
+        datasets = [d for d in args.datasets if d != "none"]
+    for dataset in datasets:
         for model in BASELINES:
             entry = {"label": model, "dataset": dataset, "commit": commit, "results": {}}
             for protocol in args.protocols:
