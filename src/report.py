@@ -36,6 +36,7 @@ import yaml
 
 from src.lit.compose import compose_config
 from src.lit.factory import PROJECT_ROOT, git_commit
+from src.lit.runs import COMPUTES
 from src.reporting.published import known_slips, published_beside, published_for
 from src.reporting.tables import (
     SeedTable,
@@ -91,9 +92,6 @@ IGNORED_KEYS = (
     "media_every",
     "task_name",
 )
-# Trainer keys that change the numbers (bf16-mixed autocast): runs that differ in them are
-# different settings, not seeds of one.
-COUNTED_TRAINER_KEYS = ("trainer.precision",)
 IGNORED_PREFIXES = (
     "paths.",
     "trainer.",
@@ -236,7 +234,8 @@ def identity(config: dict) -> dict[str, str]:
         k: v
         for k, v in _flatten(config).items()
         if k not in IGNORED_KEYS
-        and (not k.startswith(IGNORED_PREFIXES) or k.startswith(COUNTED_TRAINER_KEYS))
+        # Trainer keys that change the numbers make another setting, not another seed.
+        and (not k.startswith(IGNORED_PREFIXES) or k.startswith(COMPUTES))
     }
 
 

@@ -283,18 +283,15 @@ class MotionPredictor(L.LightningModule):
         # the prediction and the metrics' rotations in bfloat16 and move reported errors by
         # up to half their printed precision (0.01 rad).
         with torch.autocast(batch["future"].device.type, enabled=False):
-            self._evaluate_float32(batch)
-
-    def _evaluate_float32(self, batch: dict[str, Tensor]) -> None:
-        future = batch["future"]
-        pred = self(batch["observed"], future.shape[1], action=batch["action"])
-        pred_full = self.normalizer.unnormalize(pred)
-        # Ground truth goes through the same unnormalisation as the prediction, as in the
-        # reference code (protocol §2.2, §4.1).
-        gt_full = self.normalizer.unnormalize(future)
-        gt_obs_full = self.normalizer.unnormalize(batch["observed"])
-        self.euler.update(pred_full, gt_full, batch["action"], gt_observed_full=gt_obs_full)
-        self.mpjpe.update(pred_full, gt_full, batch["action"])
+            future = batch["future"]
+            pred = self(batch["observed"], future.shape[1], action=batch["action"])
+            pred_full = self.normalizer.unnormalize(pred)
+            # Ground truth goes through the same unnormalisation as the prediction, as in the
+            # reference code (protocol §2.2, §4.1).
+            gt_full = self.normalizer.unnormalize(future)
+            gt_obs_full = self.normalizer.unnormalize(batch["observed"])
+            self.euler.update(pred_full, gt_full, batch["action"], gt_observed_full=gt_obs_full)
+            self.mpjpe.update(pred_full, gt_full, batch["action"])
 
     def on_validation_epoch_end(self) -> None:
         self._finish_evaluation("val")

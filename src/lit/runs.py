@@ -319,11 +319,12 @@ def restore_run(
             node_key = key.replace("/", ".")
             if _free(node_key):
                 _set(restored, node_key, _raw(raw, node_key))
-                for key in COMPUTES:  # a trainer=... option brings the Trainer, not its numerics
-                    kept = _raw(OmegaConf.to_container(saved, resolve=False), key)
-                    if _under(key, (node_key,)) and kept is _ABSENT:
+                # A trainer=... option brings the Trainer, not its numerics: keep the run's.
+                for key in (k for k in COMPUTES if _under(k, (node_key,))):
+                    kept = OmegaConf.select(saved, key, default=_ABSENT)
+                    if kept is _ABSENT:
                         _remove(restored, key)
-                    elif _under(key, (node_key,)):
+                    else:
                         _set(restored, key, kept)
             continue
         if _under(key, FROM_HERE):

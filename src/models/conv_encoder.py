@@ -206,8 +206,8 @@ class ConvEncoder(nn.Module):
                 x, self._packed[i][1], None, [0, 0], list(conv.stride), [1, 1], 1,
                 "leaky_relu", [act.negative_slope], "",
             )  # fmt: skip
-            return drop(y) if drop.training else y
-        y = act(conv(x))
+        else:
+            y = act(conv(x))
         return drop(y) if drop.training else y
 
 
