@@ -153,22 +153,51 @@ TRAIN_KINDS = {
 }
 
 
-def bench_training(device, batches, repeats) -> tuple[dict, dict]:
-    """Iterations/s per (kind, batch), interleaving kinds per repeat; plus FLOPs/iteration."""
+def bench_training(device, batches, repeats) -> tuple[dict, dict, dict]:
+    """Iterations/s per (kind, batch), interleaving kinds per repeat; plus FLOPs/iteration and
+    whether each kind's step ran compiled."""
     times: dict[str, list[float]] = {}
     flops: dict[str, float] = {}
+    compiled: dict[str, bool] = {}
     for B in batches:
         mods = {k: module(k, device) for k in TRAIN_KINDS}
         data = {k: batch(B, device, k == "conv_adv") for k in TRAIN_KINDS}
-        for k, m in mods.items():  # warm-up, and the FLOPs of one iteration
+        for k, m in mods.items():
+            # The FLOPs of one iteration, counted on the eager step (every op visible) ...
+            m.compile_step, m._compiled = False, None
             with flop_counter() as fc:
                 m.training_step(data[k], 0)
             flops[f"{k}@{B}"] = fc.get_total_flops()
+            # ... then as src.train runs it (compile.enabled=auto: compiled on CUDA), warmed
+            # up: compiling, and recording the CUDA graphs, take the first calls.
+            m.compile_step, m._compiled = "auto", None
+            for _ in range(3):
+                m.training_step(data[k], 0)
+            compiled[k] = m._objectives()[0]
         for _ in range(repeats):
             for k, m in mods.items():
                 step = partial(m.training_step, data[k], 0)
                 times.setdefault(f"{k}@{B}", []).extend(timed(step, device, 1))
-    return {k: statistics.median(v) for k, v in times.items()}, flops
+    return {k: statistics.median(v) for k, v in times.items()}, flops, compiled
+
+
+def bench_compile(device, B: int, repeats: int) -> dict:
+    """it/s of the conv_s2s + adversarial step eager and compiled (compile.enabled=false/true),
+    interleaved: the measurement behind compile.enabled=auto's choice per device."""
+    data = batch(B, device, True)
+    mods = {flag: module("conv_adv", device) for flag in (False, True)}
+    times: dict[bool, list[float]] = {}
+    start = time.perf_counter()
+    for flag, m in mods.items():
+        m.compile_step = flag
+        for _ in range(3):  # compiling and recording CUDA graphs take the first calls
+            m.training_step(data, 0)
+    warm_s = time.perf_counter() - start
+    for _ in range(repeats):
+        for flag, m in mods.items():
+            times.setdefault(flag, []).extend(timed(partial(m.training_step, data, 0), device, 1))
+    its = {flag: 1.0 / statistics.median(v) for flag, v in times.items()}
+    return {"batch": B, "eager": its[False], "compiled": its[True], "warm_up_s": warm_s}
 
 
 def bench_inference(device, repeats, big: int) -> dict:
@@ -347,6 +376,28 @@ def markdown(r: dict) -> str:
     for B in r["batches"]:
         for k, label in TRAIN_KINDS.items():
             lines.append(f"| train it/s, batch {B}: {label} | {t[f'{k}@{B}']:.2f} |")
+    comp = r.get("compile") or {}
+    if comp:
+        B = comp["batch"]
+        lines += [
+            f"| train it/s, batch {B}: conv_s2s + adversarial, eager (`compile.enabled=false`) | "
+            f"{comp['eager']:.2f} |",
+            f"| train it/s, batch {B}: conv_s2s + adversarial, compiled (`compile.enabled=true`) | "
+            f"{comp['compiled']:.2f} |",
+            f"| first 3 steps of both (compiling) s | {comp['warm_up_s']:.0f} |",
+        ]
+    compiled = r.get("train_compiled", {})
+    lines.append(
+        "| training steps above compiled (`compile.enabled=auto`: on CUDA only) | "
+        + (
+            "yes"
+            if compiled and all(compiled.values())
+            else "no"
+            if not any(compiled.values())
+            else ", ".join(f"{k}: {'yes' if v else 'no'}" for k, v in compiled.items())
+        )
+        + " |"
+    )
     for key, label in (("inc", "incremental"), ("recompute", "recompute")):
         lines += [
             f"| latency batch 1, 50->25, {label}: median ms | "
@@ -447,6 +498,9 @@ NOTES = [
     "  layers' weights once per decoding step (matrix-vector products bound by memory).",
     "- The training step's optimisers are fused Adam, and the L2 terms of eq. (9) and of the",
     "  discriminator are added to the gradients in closed form (src/lit/predictor.py).",
+    "- `compile.enabled=auto` compiles the training step's two objectives on CUDA only (mode",
+    "  reduce-overhead: each one's forward and backward replayed as a CUDA graph); the eager",
+    "  and compiled rows above compare the two on this run's device.",
 ]
 
 
@@ -472,7 +526,7 @@ def main(argv: list[str] | None = None) -> dict:
     context = {**machine_info(), "torch_threads": torch.get_num_threads(), "device": str(device)}
     if device.type == "cuda":
         context["device"] = torch.cuda.get_device_name(device)
-    train, flops = bench_training(device, batches, 1 if smoke else 5)
+    train, flops, compiled = bench_training(device, batches, 1 if smoke else 5)
     inference = bench_inference(device, 2 if smoke else 30, 4 if smoke else 256)
     n = 256 if smoke else 2048
     matmul = bench_matmul(device, n, 2 if smoke else 10)
@@ -495,12 +549,15 @@ def main(argv: list[str] | None = None) -> dict:
         "batches": batches,
         "training_it_s": train_its,
         "train_flops": flops,
+        "train_compiled": compiled,
         "inference": inference,
         "matmul_n": n,
         "matmul_gflops": matmul,
         "data": bench_data(3 if smoke else 200),
         "validation_s": val_s,
         "profile": bench_profile(device, batches[0], 1 if smoke else 3),
+        # Compiling takes minutes on the CPU: not in the CI smoke run.
+        "compile": {} if smoke else bench_compile(device, batches[0], 5),
         "val_every": args.val_every,
         "validation_fraction": val_frac,
         "train_cli": cli,

@@ -82,8 +82,14 @@ class MotionPredictor(L.LightningModule):
         reference_fake_slot: bool = False,
         dim_rule: str = "future",
         run_info: dict[str, Any] | None = None,
+        compile: bool | str = "auto",
+        compile_mode: str = "reduce-overhead",
     ):
         super().__init__()
+        if compile not in (True, False, "auto"):
+            raise ValueError(
+                f"compile must be true, false or auto (on a CUDA device), got {compile!r}"
+            )
         self.automatic_optimization = False
         self.net = net
         self.normalizer = normalizer
@@ -103,6 +109,11 @@ class MotionPredictor(L.LightningModule):
         self.lambda_2_d = lambda_2_d
         self.reference_fake_slot = reference_fake_slot
         self.run_info = run_info or {}
+        # torch.compile the two objectives of a training iteration: "auto" on a CUDA device.
+        self.compile_step, self.compile_mode = compile, compile_mode
+        self._compiled: tuple | None = None  # see _objectives
+        self._eta_tensor: Tensor | None = None
+        self._host_iteration: int | None = None  # self.iteration on the host, see _eta
         # Training iterations done, saved in the state dict so eta and logging resume exactly.
         self.register_buffer("iteration", torch.zeros((), dtype=torch.long))
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
@@ -142,6 +153,10 @@ class MotionPredictor(L.LightningModule):
         ]
         return optimizers, schedulers
 
+    def on_train_start(self) -> None:
+        # After a resume restored `iteration`; the compile decision on the fit's device.
+        self._host_iteration, self._compiled = None, None
+
     def on_fit_start(self) -> None:
         # add_l2_gradient_ adds to the gradients after backward, so they must not be scaled.
         if getattr(self.trainer.precision_plugin, "scaler", None) is not None:
@@ -151,7 +166,17 @@ class MotionPredictor(L.LightningModule):
             )
 
     def _eta(self) -> float:
-        return 1.0 if self.eta_schedule is None else float(self.eta_schedule(int(self.iteration)))
+        if self.eta_schedule is None:
+            return 1.0
+        if self._host_iteration is None:  # once per fit: on a GPU each read is a sync
+            self._host_iteration = int(self.iteration)
+        eta = float(self.eta_schedule(self._host_iteration))
+        if not 0.0 <= eta <= 1.0:  # checked here: the compiled step's tensor eta is not read
+            raise ValueError(
+                f"the eta schedule gave {eta} at iteration "
+                f"{self._host_iteration}; eta must lie in [0, 1]"
+            )
+        return eta
 
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
         """The 75-frame sequence the discriminator judges: the observed frames, then the ground
@@ -167,9 +192,73 @@ class MotionPredictor(L.LightningModule):
             observed = torch.cat([observed[:, :-1], future[:, :1]], dim=1)
         return torch.cat([observed, fake], dim=1)
 
+    def _d_objective(
+        self, observed: Tensor, future: Tensor, action: Tensor, eta: float | Tensor
+    ) -> tuple[Tensor, Tensor]:
+        """eq. (8), -log D(real) - log(1 - D(fake)), on one batch; also the mean logit of the
+        real sequences (logged)."""
+        with torch.no_grad():
+            fake = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
+        # Real and fake in one call: one weight gradient per layer instead of two summed.
+        real_and_fake = torch.cat(
+            [self._sequence(observed, future), self._sequence(observed, future, fake)]
+        )
+        logit_real, logit_fake = self.discriminator(real_and_fake, action.repeat(2)).chunk(2)
+        loss = F.binary_cross_entropy_with_logits(
+            logit_real, torch.ones_like(logit_real)
+        ) + F.binary_cross_entropy_with_logits(logit_fake, torch.zeros_like(logit_fake))
+        return loss, logit_real.detach().mean()
+
+    def _g_objective(
+        self, observed: Tensor, future: Tensor, action: Tensor, eta: float | Tensor
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """eq. (9) without its L2 term (added as a gradient by training_step), and its parts:
+        (loss to backpropagate, reconstruction (7), adversarial term or 0)."""
+        pred = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
+        loss_recon = F.mse_loss(pred, future)  # eq. (7), mean over batch x T x D as the reference
+        if not self.adversarial:
+            return loss_recon, loss_recon.detach(), torch.zeros_like(loss_recon)
+        logit = self.discriminator(self._sequence(observed, future, pred), action)
+        # eq. (9), non-saturating form -log D(fake) as in the reference (protocol §6.5)
+        loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
+        return loss_recon + self.lambda_adv * loss_adv, loss_recon.detach(), loss_adv.detach()
+
+    def _objectives(self):
+        """(discriminator, generator) objective functions: eager, or compiled (see `compile`)."""
+        if self._compiled is None:
+            # auto: not under DDP, where compiling a bound method of the inner module is not
+            # what torch's DDP graph splitting expects (untested there).
+            single = self._trainer is None or self.trainer.world_size == 1
+            on = self.compile_step is True or (
+                self.compile_step == "auto" and self.device.type == "cuda" and single
+            )
+            d, g = self._d_objective, self._g_objective
+            if on:
+                # Static shapes and one graph per objective: reduce-overhead captures each
+                # (forward and backward) in a CUDA graph, so a step is a few graph launches
+                # instead of thousands of kernels (the GPU step was launch-bound).
+                d = torch.compile(d, mode=self.compile_mode, fullgraph=True)
+                g = torch.compile(g, mode=self.compile_mode, fullgraph=True)
+            self._compiled = (on, d, g)
+        return self._compiled
+
+    def _eta_input(self, eta: float, compiled: bool) -> float | Tensor:
+        """eta for the objectives: a float in eager mode; compiled, a tensor refilled in place,
+        so a new value neither recompiles nor syncs."""
+        if not compiled:
+            return eta
+        if self._eta_tensor is None or self._eta_tensor.device != self.device:
+            self._eta_tensor = torch.zeros((), device=self.device)
+        return self._eta_tensor.fill_(eta)
+
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         observed, future, action = batch["observed"], batch["future"], batch["action"]
         eta = self._eta()
+        compiled, d_objective, g_objective = self._objectives()
+        if compiled:
+            # One training iteration: outputs of the previous one's CUDA graphs may be reused.
+            torch.compiler.cudagraph_mark_step_begin()
+        eta_in = self._eta_input(eta, compiled)
         optimizers = self.optimizers()
         optimizers = optimizers if isinstance(optimizers, list) else [optimizers]
         schedulers = self.lr_schedulers()
@@ -186,42 +275,26 @@ class MotionPredictor(L.LightningModule):
             )
             opt_d = optimizers[1]
             self.toggle_optimizer(opt_d)
-            with torch.no_grad():
-                fake = self.net(obs_d, fut_d.shape[1], action=act_d, future=fut_d, eta=eta)
-            # Real and fake in one call: one weight gradient per layer instead of two summed.
-            real_and_fake = torch.cat(
-                [self._sequence(obs_d, fut_d), self._sequence(obs_d, fut_d, fake)]
-            )
-            logit_real, logit_fake = self.discriminator(real_and_fake, act_d.repeat(2)).chunk(2)
-            # eq. (8): -log D(real) - log(1 - D(fake))
-            loss_d_adv = F.binary_cross_entropy_with_logits(
-                logit_real, torch.ones_like(logit_real)
-            ) + F.binary_cross_entropy_with_logits(logit_fake, torch.zeros_like(logit_fake))
-            loss_d = loss_d_adv + self.lambda_2_d * l2_penalty(self.discriminator)
+            loss_d_adv, d_real = d_objective(obs_d, fut_d, act_d, eta_in)
+            loss_d = loss_d_adv.detach() + self.lambda_2_d * l2_penalty(self.discriminator)
             self._check_finite(loss_d=loss_d)
             opt_d.zero_grad()
             self.manual_backward(loss_d_adv)
             add_l2_gradient_(self.discriminator, self.lambda_2_d)
             opt_d.step()
             self.untoggle_optimizer(opt_d)
-            logs["train/loss_d"] = loss_d.detach()
-            logs["train/d_real"] = logit_real.mean().detach()
+            # Clones: a CUDA graph's outputs are overwritten by its next replay.
+            logs["train/loss_d"] = loss_d.clone()
+            logs["train/d_real"] = d_real.clone()
             observed, future, action = obs_g, fut_g, act_g
 
         opt_g = optimizers[0]
         if self.adversarial:
             self.toggle_optimizer(opt_g)
-        pred = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
-        loss_recon = F.mse_loss(pred, future)  # eq. (7), mean over batch x T x D as the reference
-        loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else pred.new_zeros(())
-        loss_backprop = loss_recon  # eq. (9) without its L2 term, added as a gradient below
-        if self.adversarial:
-            logit = self.discriminator(self._sequence(observed, future, pred), action)
-            # eq. (9), non-saturating form -log D(fake) as in the reference (protocol §6.5)
-            loss_adv = F.binary_cross_entropy_with_logits(logit, torch.ones_like(logit))
-            loss_backprop = loss_backprop + self.lambda_adv * loss_adv
-            logs["train/loss_adv"] = loss_adv.detach()
-        loss_g = loss_backprop + self.lambda_2 * loss_l2
+        loss_backprop, loss_recon, loss_adv = g_objective(observed, future, action, eta_in)
+        loss_recon = loss_recon.clone()
+        loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else loss_recon.new_zeros(())
+        loss_g = loss_backprop.detach() + self.lambda_2 * loss_l2
         self._check_finite(loss_g=loss_g, loss_recon=loss_recon)
         opt_g.zero_grad()
         self.manual_backward(loss_backprop)
@@ -234,15 +307,18 @@ class MotionPredictor(L.LightningModule):
         opt_g.step()
         if self.adversarial:
             self.untoggle_optimizer(opt_g)
+            logs["train/loss_adv"] = loss_adv.clone()
         for sch in schedulers:
             sch.step()
         self.iteration += 1
+        if self._host_iteration is not None:
+            self._host_iteration += 1
 
         logs.update(
             {
-                "train/loss_g": loss_g.detach(),
-                "train/loss_recon": loss_recon.detach(),
-                "train/loss_l2": loss_l2.detach(),
+                "train/loss_g": loss_g,
+                "train/loss_recon": loss_recon,
+                "train/loss_l2": loss_l2,
                 "train/lr": opt_g.param_groups[0]["lr"],
             }
         )

@@ -46,6 +46,7 @@ FREE = (
     "media_every",
     "progress_every_s",
     "trainer",
+    "compile",
     "data.num_workers",
 )
 # ... except these, which change the numbers (bf16-mixed autocast): a resume keeps the run's.

@@ -106,17 +106,18 @@ class ConvSeq2Seq(nn.Module):
         future_len: int,
         action: Tensor | None = None,
         future: Tensor | None = None,
-        eta: float = 1.0,
+        eta: float | Tensor = 1.0,
     ) -> Tensor:
         """Predict (B, future_len, D) from observed (B, observed_len, D).
 
         `future` (B, >= future_len, D) is the ground truth, used only for the eq. (10) mixing
         when eta < 1; with future=None decoding is fully autoregressive. `action` is ignored.
+        A 0-dim tensor eta (the compiled training step) always mixes: exact at eta = 1.
         """
         B = check_forward_inputs(
             observed, self.observed_len, self.pose_dim, future_len, future, eta
         )
-        mix = future is not None and eta != 1.0
+        mix = mixes(future, eta)
 
         # Reusing rows pays on the CPU only: on an H100 it was slower than recomputing at batch
         # 1 and 256 (docs/performance.md, shared measurements of 58436ca).
@@ -161,7 +162,7 @@ class ConvSeq2Seq(nn.Module):
 
         return decoder
 
-    def _next_frame(self, pred: Tensor, future: Tensor, k: int, eta: float) -> Tensor:
+    def _next_frame(self, pred: Tensor, future: Tensor, k: int, eta: float | Tensor) -> Tensor:
         """eq. (10): mix x̂_{t+k} with its own ground truth x_{t+k} = future[:, k].
 
         The reference (protocol §6.4) uses w[51+it] = future[:, k+1], the target of the
@@ -187,7 +188,7 @@ class ConvSeq2Seq(nn.Module):
         observed: Tensor,
         future_len: int,
         future: Tensor | None = None,
-        eta: float = 1.0,
+        eta: float | Tensor = 1.0,
         cache: tuple[IncrementalCEM | None, IncrementalCEM] | None = None,
         first_id: int = 0,
     ) -> Tensor:
@@ -200,7 +201,7 @@ class ConvSeq2Seq(nn.Module):
         B = check_forward_inputs(
             observed, self.observed_len, self.pose_dim, future_len, future, eta
         )
-        mix = future is not None and eta != 1.0
+        mix = mixes(future, eta)
         ids = list(range(first_id, first_id + self.observed_len))
         # One call without a cache encodes the long-term window once: nothing to share.
         long, short = cache if cache is not None else (None, IncrementalCEM(self.short_encoder))
@@ -233,17 +234,25 @@ class ConvSeq2Seq(nn.Module):
         return torch.stack(preds, dim=1) if preds else observed.new_zeros(B, 0, self.pose_dim)
 
 
+def mixes(future: Tensor | None, eta: float | Tensor) -> bool:
+    """Whether decoding mixes in the ground truth (eq. 10). A tensor eta is never read on the
+    host (a compiled step would stop at the branch, a GPU would sync): it always mixes, which
+    at eta = 1 gives the prediction exactly (1 * x + 0 * gt = x)."""
+    return future is not None and (isinstance(eta, Tensor) or eta != 1.0)
+
+
 def check_forward_inputs(
     observed: Tensor,
     observed_len: int | None,
     pose_dim: int,
     future_len: int,
     future: Tensor | None,
-    eta: float,
+    eta: float | Tensor,
 ) -> int:
     """Validate the common predictor forward contract; returns the batch size B.
 
-    observed_len=None accepts any number of observed frames (the baselines).
+    observed_len=None accepts any number of observed frames (the baselines). A tensor eta is
+    not read (see `mixes`): its caller checks the value.
     """
     T = observed.shape[1] if observed.dim() == 3 and observed_len is None else observed_len
     if observed.dim() != 3 or tuple(observed.shape[1:]) != (T, pose_dim):
@@ -261,6 +270,6 @@ def check_forward_inputs(
         raise ValueError(
             f"future must be (B={B}, T>={future_len}, {pose_dim}), got {tuple(future.shape)}"
         )
-    if not 0.0 <= eta <= 1.0:
+    if not isinstance(eta, Tensor) and not 0.0 <= eta <= 1.0:
         raise ValueError(f"eta must lie in [0, 1] (1 = own predictions, 0 = ground truth): {eta}")
     return B

@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from src.models.conv_s2s import check_forward_inputs
+from src.models.conv_s2s import check_forward_inputs, mixes
 from src.models.discriminator import one_hot_action
 
 
@@ -76,7 +76,7 @@ class GRUSeq2Seq(nn.Module):
         future_len: int,
         action: Tensor | None = None,
         future: Tensor | None = None,
-        eta: float = 1.0,
+        eta: float | Tensor = 1.0,
     ) -> Tensor:
         """Predict (B, future_len, D) pose frames; see `decode` for the arguments."""
         return self.decode(observed, future_len, action, future, eta)[..., : self.pose_dim]
@@ -87,7 +87,7 @@ class GRUSeq2Seq(nn.Module):
         future_len: int,
         action: Tensor | None = None,
         future: Tensor | None = None,
-        eta: float = 1.0,
+        eta: float | Tensor = 1.0,
     ) -> Tensor:
         """All decoder outputs (B, future_len, input_size), one-hot columns included.
 
@@ -97,7 +97,7 @@ class GRUSeq2Seq(nn.Module):
         B = check_forward_inputs(
             observed, self.observed_len, self.pose_dim, future_len, future, eta
         )
-        mix = future is not None and eta != 1.0
+        mix = mixes(future, eta)
         x, gt = observed, future
         if self.one_hot:
             oh = one_hot_action(action, self.num_actions, B).to(observed).unsqueeze(1)

@@ -1,0 +1,151 @@
+"""The compiled training step (`compile.enabled`, src/lit/predictor.py) against the eager one.
+
+Compiled, an objective runs as one graph (fullgraph: no Python between the kernels), and on a
+CUDA device mode reduce-overhead replays it as a CUDA graph. With inductor's `fallback_random`
+the compiled dropout draws eager's masks, so the two paths must give the same losses and
+weights up to float rounding (TF32 off on the GPU). Three iterations through a real Trainer:
+the eta tensor refilled in place, the graph outputs cloned before the next replay, and the
+optimiser steps between them are all on the path.
+"""
+
+import copy
+
+import lightning as L
+import pytest
+import torch
+import torch._inductor.config as inductor_config
+
+from src.lit.factory import ConfigError, build_datamodule, build_module
+
+CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+# Three future frames instead of 25: the graph (and its compile time) shrinks with the
+# unrolled decoding loop; everything else is the paper's model.
+SHORT = ["iterations=3", "val_every=3", "data.future_len=3"]
+CONFIGS = {
+    # eta 0.95 (the reference's constant): the eq. (10) mixing on every step
+    "conv_s2s_adversarial": ["model=conv_s2s", "adversarial=li2018", "sampling=constant"],
+    # eta 1 as a tensor: always mixed, which must equal the prediction exactly
+    "gru_s2s": ["experiment=martinez2017_res_sup"],
+}
+
+
+def _fit(cfg, compiled: bool, device: str) -> tuple[list[dict[str, float]], dict, dict]:
+    """Losses logged at each iteration, the first and the final weights of a 3-iteration fit."""
+    L.seed_everything(0)
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    module = build_module(cfg, dm)
+    dm.draws_per_step = 2 if module.adversarial else 1
+    dm.steps_per_epoch = 3
+    module.compile_step = compiled
+    first = {k: v.clone() for k, v in module.state_dict().items()}
+    seen: list[dict[str, float]] = []
+
+    class Spy(L.Callback):
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+            metrics = trainer.callback_metrics.items()
+            seen.append({k: v.item() for k, v in metrics if k.startswith("train/")})
+
+    trainer = L.Trainer(
+        max_epochs=1,
+        limit_val_batches=0,
+        logger=False,
+        enable_checkpointing=False,
+        callbacks=[Spy()],
+        accelerator=device,
+        devices=1,
+        use_distributed_sampler=False,
+        enable_progress_bar=False,
+        deterministic=device == "cpu",
+    )
+    trainer.fit(module, datamodule=dm)
+    assert module._objectives()[0] is compiled
+    return seen, first, {k: v.cpu() for k, v in copy.deepcopy(module.state_dict()).items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=CUDA)])
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_compiled_step_gives_the_eager_step_losses(name, device, train_cfg, monkeypatch):
+    if device == "cuda":
+        monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
+        monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+    cfg = train_cfg(*CONFIGS[name], *SHORT, "compile.mode=reduce-overhead")
+    with inductor_config.patch(fallback_random=True):
+        eager_losses, first, eager_weights = _fit(cfg, False, device)
+        compiled_losses, _, compiled_weights = _fit(cfg, True, device)
+
+    assert len(eager_losses) == len(compiled_losses) == 3
+    for it, (e, c) in enumerate(zip(eager_losses, compiled_losses, strict=True)):
+        assert e.keys() == c.keys()
+        for key in e:
+            assert c[key] == pytest.approx(e[key], rel=1e-4, abs=1e-6), (it, key)
+    # The losses move between iterations: the optimiser steps reached the compiled graphs.
+    assert eager_losses[0]["train/loss_recon"] != eager_losses[-1]["train/loss_recon"]
+    # Weights: Adam moves every weight by about lr per step whatever its gradient's size, so
+    # float rounding of a near-zero gradient can change a step by up to lr; the two paths must
+    # stay far closer to each other than to where training started (a skipped or doubled
+    # step would be a third of that distance).
+    for key, w in eager_weights.items():
+        if not w.is_floating_point() or key.startswith("normalizer"):
+            continue
+        trained = (w - first[key]).abs().max().item()
+        apart = (compiled_weights[key] - w).abs().max().item()
+        assert trained > 0, key
+        assert apart <= 0.1 * trained, (key, apart, trained)
+
+
+def test_compile_is_on_by_default_on_cuda_only(train_cfg):
+    cfg = train_cfg("model=conv_s2s")
+    assert cfg.compile.enabled == "auto"
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    module = build_module(cfg, dm)
+    assert module._objectives()[0] is False  # on the CPU
+    if torch.cuda.is_available():
+        module.to("cuda")
+        module._compiled = None
+        assert module._objectives()[0] is True
+
+
+def test_a_tensor_eta_of_one_gives_the_prediction_exactly(train_cfg):
+    """The compiled step passes eta as a tensor, which always mixes (eq. 10): at eta = 1 the
+    mix must be the prediction bit for bit, or eta = 1 schedules would change numbers."""
+    cfg = train_cfg("model=conv_s2s")
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    net = build_module(cfg, dm).net.train()
+    batch = next(iter(dm.train_dataloader()))
+    outs = []
+    for eta in (1.0, torch.tensor(1.0)):
+        torch.manual_seed(0)
+        outs.append(net(batch["observed"], 25, future=batch["future"], eta=eta))
+    assert torch.equal(outs[0], outs[1])
+    torch.manual_seed(0)
+    mixed = net(batch["observed"], 25, future=batch["future"], eta=torch.tensor(0.5))
+    assert not torch.equal(mixed, outs[0])
+
+
+def test_a_compile_setting_typo_is_refused(train_cfg):
+    cfg = train_cfg("model=conv_s2s", "compile.enabled=cuda")
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    with pytest.raises((ConfigError, ValueError), match="compile must be true, false or auto"):
+        build_module(cfg, dm)
+
+
+def test_an_eta_schedule_outside_zero_one_stops_training(train_cfg):
+    """The compiled step never reads its tensor eta, so the value is checked where the schedule
+    gives it, on both paths."""
+    cfg = train_cfg("model=conv_s2s")
+    dm = build_datamodule(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    module = build_module(cfg, dm)
+    module.eta_schedule = lambda it: 1.5
+    with pytest.raises(ValueError, match=r"eta schedule gave 1.5 at iteration 0; .* \[0, 1\]"):
+        module._eta()
