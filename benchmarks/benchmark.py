@@ -37,6 +37,7 @@ from torch.utils.flop_counter import FlopCounterMode, conv_flop_count  # noqa: E
 
 from benchmarks.data_loading import machine_info  # noqa: E402
 from src.data.normalization import Normalizer  # noqa: E402
+from src.inference import compile_for_prediction  # noqa: E402
 from src.lit.predictor import MotionPredictor  # noqa: E402
 from src.models.conv_encoder import IncrementalCEM  # noqa: E402
 from src.models.conv_s2s import ConvSeq2Seq  # noqa: E402
@@ -200,6 +201,26 @@ def bench_compile(device, B: int, repeats: int) -> dict:
     return {"batch": B, "eager": its[False], "compiled": its[True], "warm_up_s": warm_s}
 
 
+def bench_compiled_prediction(device, repeats: int) -> dict:
+    """Batch-1 latency of forward() eager and compiled as MotionForecaster(compile=True) runs
+    it (on CUDA, its default: one CUDA graph per shape), interleaved."""
+    net = conv_net().to(device).eval()
+    paths = {False: net, True: compile_for_prediction(net)}
+    x1 = torch.randn(1, OBS, D, device=device)
+    times: dict[bool, list[float]] = {}
+    with torch.inference_mode():
+        start = time.perf_counter()
+        for _ in range(3):  # compiling and recording take the first calls
+            paths[True](x1, FUT)
+        warm_s = time.perf_counter() - start
+        diff = (paths[True](x1, FUT) - paths[False](x1, FUT)).abs().max().item()
+        for _ in range(repeats):
+            for flag, f in paths.items():
+                times.setdefault(flag, []).extend(timed(partial(f, x1, FUT), device, 1))
+    ms = {flag: 1e3 * statistics.median(v) for flag, v in times.items()}
+    return {"eager_ms": ms[False], "compiled_ms": ms[True], "warm_up_s": warm_s, "max_diff": diff}
+
+
 def bench_inference(device, repeats, big: int) -> dict:
     net = conv_net().to(device).eval()
     # Both paths called directly: forward() itself reuses rows on the CPU only.
@@ -334,7 +355,7 @@ def bench_train_cli(device: torch.device, ref: str, iterations: int) -> dict:
     }
 
 
-def issue_targets(device: torch.device, cli: dict, inference: dict) -> list[list[str]]:
+def issue_targets(device: torch.device, cli: dict, inference: dict, pred: dict) -> list[list[str]]:
     """Rows [measurement, now, target] of the speed issue's table, from this run only."""
     on_gpu = device.type == "cuda"
     here = "GPU" if on_gpu else "CPU"
@@ -357,6 +378,8 @@ def issue_targets(device: torch.device, cli: dict, inference: dict) -> list[list
     lat = f"{inference['latency_ms_median_recompute']:.1f} ms {here} (recompute), " + (
         f"{inference['latency_ms_median_inc']:.1f} ms (incremental)"
     )
+    if pred:
+        lat += f", {pred['compiled_ms']:.1f} ms (compiled)"
     return [
         ["conv_s2s + regulariser, batch 16, `src.train`, GPU", its("conv_adv", True), ">= 35 it/s"],
         ["gru_s2s, batch 16, `src.train`, GPU", its("gru", True), ">= 100 it/s"],
@@ -408,6 +431,15 @@ def markdown(r: dict) -> str:
             f"| FLOPs per prediction, {label} (GFLOP) | "
             f"{inf[f'flops_per_prediction_{key}'] / 1e9:.3f} |",
             f"| achieved GFLOP/s at batch 1, {label} | {inf[f'gflops_achieved_b1_{key}']:.2f} |",
+        ]
+    pred = r.get("compiled_prediction") or {}
+    if pred:
+        lines += [
+            f"| latency batch 1, forward() eager: median ms | {pred['eager_ms']:.1f} |",
+            "| latency batch 1, forward() compiled (MotionForecaster compile=true, the default "
+            f"on CUDA): median ms | {pred['compiled_ms']:.1f} |",
+            f"| compiled prediction: first 3 calls (compiling) s, max abs diff from eager | "
+            f"{pred['warm_up_s']:.0f}, {pred['max_diff']:.1e} |",
         ]
     lines.append(
         "| short-term conv rows computed per prediction, conv1/2/3: incremental vs recompute | "
@@ -501,6 +533,10 @@ NOTES = [
     "- `compile.enabled=auto` compiles the training step's two objectives on CUDA only (mode",
     "  reduce-overhead: each one's forward and backward replayed as a CUDA graph); the eager",
     "  and compiled rows above compare the two on this run's device.",
+    "- Compiled prediction (`MotionForecaster(compile=...)`, `compile_for_prediction` in",
+    "  src/inference.py) uses mode reduce-overhead on CUDA (a CUDA graph per shape) and the",
+    "  default mode on the CPU, where reduce-overhead measured slower; it is on by default on",
+    "  CUDA only, since each new shape compiles for tens of seconds.",
 ]
 
 
@@ -537,6 +573,8 @@ def main(argv: list[str] | None = None) -> dict:
     speedup = train_its[f"conv_shared_masks@{B0}"] / train_its[f"conv_recompute@{B0}"]
     default_speedup = train_its[f"conv@{B0}"] / train_its[f"conv_recompute@{B0}"]
     lat = inference["latency_ms_median_inc"]
+    # Compiling takes a minute on the CPU: not in the CI smoke run.
+    pred = {} if smoke else bench_compiled_prediction(device, 30)
     cli = {}
     if not (smoke or args.no_train_cli):
         cli = bench_train_cli(device, args.ref, args.cli_iterations)
@@ -558,10 +596,11 @@ def main(argv: list[str] | None = None) -> dict:
         "profile": bench_profile(device, batches[0], 1 if smoke else 3),
         # Compiling takes minutes on the CPU: not in the CI smoke run.
         "compile": {} if smoke else bench_compile(device, batches[0], 5),
+        "compiled_prediction": pred,
         "val_every": args.val_every,
         "validation_fraction": val_frac,
         "train_cli": cli,
-        "issue_targets": issue_targets(device, cli, inference),
+        "issue_targets": issue_targets(device, cli, inference, pred),
         "targets": {
             "latency batch 1 <= 10 ms (incremental, median)": (f"{lat:.1f} ms", lat <= 10),
             f"train iteration batch {B0} >= 2x recompute (shared dropout masks)": (

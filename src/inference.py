@@ -80,6 +80,17 @@ class _FixedHorizon(nn.Module):
         return self.net(observed, self.future_len, action=action)
 
 
+def compile_for_prediction(net: nn.Module) -> nn.Module:
+    """`net` compiled for eval-mode prediction on the device of its weights. On a GPU a
+    batch-1 prediction is hundreds of tiny kernels, which mode "reduce-overhead" replays as
+    one CUDA graph; on the CPU the default mode, which fuses the small ops (reduce-overhead
+    is slower there: benchmarks/benchmark.py times both paths)."""
+    cuda = next(net.parameters()).device.type == "cuda"
+    # dynamic=False: one static graph per shape, which is what CUDA graphs replay.
+    mode = "reduce-overhead" if cuda else "default"
+    return torch.compile(net, mode=mode, fullgraph=True, dynamic=False)
+
+
 class MotionForecaster:
     """A trained predictor in eval mode; inputs and outputs are raw exp-map frames (..., F)."""
 
@@ -90,20 +101,30 @@ class MotionForecaster:
         actions: list[str],
         observed_len: int = 50,
         device: str = "cpu",
+        compile: bool | str = "auto",
     ):
+        """compile: run the network through `compile_for_prediction` (True, False, or
+        "auto": on CUDA only). Each new (batch size, future_len) compiles once, tens of
+        seconds, so on the CPU it pays only for long streams and is off unless asked for."""
+        if compile not in (True, False, "auto"):
+            raise ValueError(f"compile must be true, false or auto, got {compile!r}")
         self.device = torch.device(device)
         self.net = net.to(self.device).eval()
+        self.compiled = compile is True or (compile == "auto" and self.device.type == "cuda")
+        self._run = compile_for_prediction(self.net) if self.compiled else self.net
         self.normalizer = normalizer.to(self.device).eval()
         self.actions = list(actions)
         self.observed_len = observed_len
         self.num_features = normalizer.num_features
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, device: str = "cpu") -> MotionForecaster:
+    def from_checkpoint(
+        cls, path: str | Path, device: str = "cpu", compile: bool | str = "auto"
+    ) -> MotionForecaster:
         ckpt = read_checkpoint(path)
         net, normalizer = build_net(ckpt)
         observed_len = getattr(net, "observed_len", 50)
-        return cls(net, normalizer, ckpt["motion"]["actions"], observed_len, device)
+        return cls(net, normalizer, ckpt["motion"]["actions"], observed_len, device, compile)
 
     # ------------------------------------------------------------------ checks
     def _action_ids(self, action: str | None, batch: int) -> Tensor:
@@ -121,18 +142,21 @@ class MotionForecaster:
         return torch.full((batch,), self.actions.index(action), device=self.device)
 
     def _frames(self, frames: np.ndarray | Tensor, shape: str) -> Tensor:
-        x = torch.as_tensor(np.asarray(frames, dtype=np.float32), device=self.device)
+        if isinstance(frames, Tensor):
+            frames = frames.detach().cpu()
+        x = np.asarray(frames, dtype=np.float32)
         if x.shape[-1:] != (self.num_features,):
             raise InferenceInputError(
                 f"frames must be {shape} raw exp-map with F={self.num_features} columns "
                 f"(the model's dataset), got shape {tuple(x.shape)}"
             )
-        if not torch.isfinite(x).all():
-            bad = torch.nonzero(~torch.isfinite(x))[0].tolist()
+        # Checked before the copy to the device, where each check would be a host sync.
+        if not np.isfinite(x).all():
+            bad = np.argwhere(~np.isfinite(x))[0].tolist()
             raise InferenceInputError(
                 f"frames contain NaN or inf (first at index {bad}); clean them"
             )
-        return x
+        return torch.as_tensor(x, device=self.device)
 
     # ------------------------------------------------------------------ prediction
     @torch.inference_mode()
@@ -151,7 +175,7 @@ class MotionForecaster:
             )
         if future_len < 1:
             raise InferenceInputError(f"future_len must be >= 1, got {future_len}")
-        pred = self.net(
+        pred = self._run(
             self.normalizer.normalize(x), future_len, action=self._action_ids(action, x.shape[0])
         )
         out = self.normalizer.unnormalize(pred).cpu().numpy()
@@ -205,7 +229,10 @@ class ForecastStream:
         self.buffer: deque[Tensor] = deque(maxlen=forecaster.observed_len)
         self.position = -1  # stream index of the last pushed frame
         net = forecaster.net
-        self.cache = net.new_cache() if isinstance(net, ConvSeq2Seq) and net.incremental else None
+        # A row cache changes every push, which no captured graph can replay: compiled
+        # forecasters recompute each window instead.
+        incremental = isinstance(net, ConvSeq2Seq) and net.incremental and not forecaster.compiled
+        self.cache = net.new_cache() if incremental else None
 
     @torch.inference_mode()
     def push(self, frame: np.ndarray) -> np.ndarray | None:
@@ -227,5 +254,5 @@ class ForecastStream:
                 if cem is not None:
                     cem.prune(first + 1)  # rows of the dropped frame and of predictions
         else:
-            pred = net(window, self.future_len, action=self.action)
+            pred = self.fc._run(window, self.future_len, action=self.action)
         return self.fc.normalizer.unnormalize(pred)[0].cpu().numpy()

@@ -70,13 +70,17 @@ def test_issue_targets_table_never_fills_a_device_it_did_not_run_on():
 
     inference = {"latency_ms_median_recompute": 20.0, "latency_ms_median_inc": 21.0}
     cli = {"device": "cpu", "ref": "58436ca", "conv_adv": 0.9, "conv_adv_ref": 0.6, "gru": 2.0}
-    rows = {r[0]: r[1] for r in issue_targets(torch.device("cpu"), cli, inference)}
+    rows = {r[0]: r[1] for r in issue_targets(torch.device("cpu"), cli, inference, {})}
     gpu_rows = [k for k in rows if k.endswith("GPU")]
     assert len(gpu_rows) == 2 and all(rows[k].startswith("not measured") for k in gpu_rows)
     cpu_row = rows["conv_s2s + regulariser, batch 16, `src.train`, CPU"]
     assert cpu_row.startswith("0.90 it/s, 1.50x commit 58436ca (0.60 it/s)")
     assert rows["prediction, batch 1, 25 frames"].startswith("20.0 ms CPU")
     cli["device"] = "gpu"
-    rows = {r[0]: r[1] for r in issue_targets(torch.device("cuda"), cli, inference)}
+    rows = {
+        r[0]: r[1]
+        for r in issue_targets(torch.device("cuda"), cli, inference, {"compiled_ms": 1.5})
+    }
     assert rows["gru_s2s, batch 16, `src.train`, GPU"] == "2.00 it/s"
+    assert rows["prediction, batch 1, 25 frames"].endswith("1.5 ms (compiled)")
     assert rows["conv_s2s + regulariser, batch 16, `src.train`, CPU"].startswith("not measured")

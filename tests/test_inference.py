@@ -147,3 +147,43 @@ def test_one_hot_model_requires_the_action():
     with pytest.raises(InferenceInputError, match="pass action="):
         forecaster.predict(frames)
     assert forecaster.predict(frames, action="eating").shape == (25, 99)
+
+
+def test_compile_is_on_by_default_only_on_cuda(ckpt_path):
+    assert not MotionForecaster.from_checkpoint(ckpt_path).compiled  # auto, CPU
+    assert MotionForecaster.from_checkpoint(ckpt_path, compile=True).compiled
+    with pytest.raises(ValueError, match="compile must be true, false or auto"):
+        MotionForecaster.from_checkpoint(ckpt_path, compile="yes")
+
+
+DEVICES = [
+    "cpu",
+    pytest.param(
+        "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+    ),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("device", DEVICES)
+def test_compiled_forecaster_predicts_what_the_eager_one_does(
+    ckpt_path, frames, device, monkeypatch
+):
+    """Compiled (on CUDA: one CUDA graph per shape) against eager, batch and single, and the
+    stream, which recomputes each window when compiled. Each shape compiles once."""
+    if device == "cuda":  # exact float32 matmuls on both sides
+        monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
+        monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+    eager = MotionForecaster.from_checkpoint(ckpt_path, device=device, compile=False)
+    compiled = MotionForecaster.from_checkpoint(ckpt_path, device=device, compile=True)
+    assert compiled._run is not compiled.net and eager._run is eager.net
+    x = frames[:, :50]
+    for _ in range(2):  # the second call replays what the first captured
+        np.testing.assert_allclose(compiled.predict(x), eager.predict(x), rtol=1e-4, atol=1e-5)
+    stream = compiled.stream()
+    assert stream.cache is None
+    for t in range(52):
+        out = stream.push(frames[1, t])
+        if t >= 49:
+            expected = eager.predict(frames[1, t - 49 : t + 1])
+            np.testing.assert_allclose(out, expected, rtol=1e-4, atol=1e-5)

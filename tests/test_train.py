@@ -3,6 +3,7 @@ alternation, checkpoints, TensorBoard curves and evaluation of the checkpoint.""
 
 import copy
 
+import hydra
 import lightning as L
 import pytest
 import torch
@@ -162,7 +163,7 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
     from src.train import train
     from tests.conftest import compose_config
 
-    cfg = train_cfg("model=conv_s2s", "trainer.log_every_n_steps=1")
+    cfg = train_cfg("model=conv_s2s", "trainer.log_every_n_steps=1", "sampling=linear")
     score = train(cfg)
     out = tmp_path / "run"
     assert score == score  # not NaN
@@ -172,6 +173,15 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
     tags = events.Tags()["scalars"]
     assert "val_euler/walking/0080ms" in tags and "val_euler/average/1000ms" in tags
     assert "train/eta" in tags and "train/loss_d" in tags
+    # Numbers logged from the host (eta, learning rates) arrive as they were.
+    schedule = hydra.utils.instantiate(cfg.sampling)
+    etas = events.Scalars("train/eta")
+    assert len(etas) == cfg.iterations
+    for event in etas:  # the logger's step is the iteration the value was used at
+        assert event.value == pytest.approx(schedule(event.step), abs=1e-7)
+    assert [e.value for e in events.Scalars("train/lr")] == pytest.approx(
+        [cfg.model.optimizer.lr] * len(events.Scalars("train/lr"))
+    )
 
     eval_cfg = compose_config(
         "eval",

@@ -45,6 +45,12 @@ def l2_penalty(module: nn.Module) -> Tensor:
         return torch.stack(norms).square().sum() / 2 if norms else torch.zeros(())
 
 
+def _host(value: float) -> Tensor:
+    """A logged number as a CPU tensor: Lightning turns a Python float into a tensor on the
+    module's device, on a GPU a blocking copy (a host sync) per number per iteration."""
+    return torch.tensor(value, dtype=torch.float32)
+
+
 def add_l2_gradient_(module: nn.Module, weight: float) -> None:
     """Add the gradient of weight * l2_penalty(module), weight * w, to every weight's .grad.
 
@@ -263,7 +269,7 @@ class MotionPredictor(L.LightningModule):
         optimizers = optimizers if isinstance(optimizers, list) else [optimizers]
         schedulers = self.lr_schedulers()
         schedulers = schedulers if isinstance(schedulers, list) else [schedulers]
-        logs: dict[str, float | Tensor] = {"train/eta": eta}
+        logs: dict[str, Tensor] = {"train/eta": _host(eta)}
 
         if self.adversarial:
             # The discriminator and generator see different random batches (protocol §6.6);
@@ -319,11 +325,11 @@ class MotionPredictor(L.LightningModule):
                 "train/loss_g": loss_g,
                 "train/loss_recon": loss_recon,
                 "train/loss_l2": loss_l2,
-                "train/lr": opt_g.param_groups[0]["lr"],
+                "train/lr": _host(opt_g.param_groups[0]["lr"]),
             }
         )
         if self.adversarial:
-            logs["train/lr_d"] = optimizers[1].param_groups[0]["lr"]
+            logs["train/lr_d"] = _host(optimizers[1].param_groups[0]["lr"])
         self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
         self.log("train/loss_recon_bar", loss_recon, prog_bar=True, logger=False)
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
