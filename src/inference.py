@@ -105,7 +105,8 @@ class MotionForecaster:
     ):
         """compile: run the network through `compile_for_prediction` (True, False, or
         "auto": on CUDA only). Each new (batch size, future_len) compiles once, tens of
-        seconds, so on the CPU it pays only for long streams and is off unless asked for."""
+        seconds; on the CPU compiling has not been reliably faster, so it is off there unless
+        asked for."""
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {compile!r}")
         self.device = torch.device(device)
