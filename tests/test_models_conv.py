@@ -90,6 +90,36 @@ def test_first_conv_receptive_field_matches_tf(padding, pixel, expected):
     assert {tuple(ix) for ix in (out != 0).nonzero().tolist()} == expected
 
 
+@pytest.mark.filterwarnings("ignore:TF32 acceleration on top of oneDNN")  # flags() says it
+@pytest.mark.parametrize("case", list(SHAPES))
+def test_cem_gradients_equal_the_native_convolutions(case):
+    """Outputs and gradients of the CEM (oneDNN convolutions on the CPU) equal PyTorch's
+    native convolutions at every geometry of the protocol.
+
+    Why this test exists: in torch 2.13.0+cpu, oneDNN's input gradient of a stride-2 2x7
+    convolution that pads by itself is wrong for 128+ channels (30-40% relative error on a
+    Sapphire Rapids CPU; the forward and weight gradients are right). The CEM pads with F.pad
+    and convolves without padding, which is correct, and a change that moves the (symmetric)
+    padding into the convolution to save the padded copy fails here."""
+    if not torch.backends.mkldnn.is_available():
+        pytest.skip("this torch build has no oneDNN: nothing to compare")
+    in_len, D, nf, padding, *_ = SHAPES[case]
+    torch.manual_seed(0)
+    enc = ConvEncoder(in_len, D, nf=nf, padding=padding).eval()  # eval: no dropout
+    x = torch.randn(3, in_len, D, requires_grad=True)
+    params = [x, *enc.parameters()]
+
+    def outputs_and_gradients():
+        out = enc(x)
+        return [out, *torch.autograd.grad(out.square().sum(), params)]
+
+    onednn = outputs_and_gradients()
+    with torch.backends.mkldnn.flags(enabled=False):
+        native = outputs_and_gradients()
+    for got, want in zip(onednn, native, strict=True):
+        torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-5 * want.abs().max().item())
+
+
 def test_cem_too_short_inputs_name_the_parameter():
     with pytest.raises(ValueError, match="in_len=5"):
         ConvEncoder(5, 70, padding="valid")

@@ -175,6 +175,9 @@ class ConvEncoder(nn.Module):
                 f"ConvEncoder expects (B, {self.in_len}, {self.pose_dim}), got {tuple(x.shape)}"
             )
         h = x.unsqueeze(1)
+        # Padding stays a separate F.pad even where TF's is symmetric (conv2 on H3.6M) and the
+        # convolution could pad by itself, 6% faster: in torch 2.13 oneDNN then gets the input
+        # gradient wrong at 128+ channels (tests/test_models_conv.py, ..._native_convolutions).
         for i, (pad, *_) in enumerate(self.layers):
             h = self.conv_act(i, F.pad(h, pad.padding))
         return self.fc(torch.flatten(h, 1))
