@@ -41,8 +41,14 @@ def test_benchmark_smoke_writes_json(tmp_path):
         "targets",
         "command",
         "date",
+        "arithmetic_bound",
     ):
         assert key in r, key
+    # The step's convolutions and matrix products: a real share of it, and a bound above the
+    # measured speed (everything else taken away).
+    bound = r["arithmetic_bound"]
+    assert 0.05 < bound["share"] < 1
+    assert bound["its"] > r["training_it_s"]["conv_adv@2"]
     assert {"commit", "cpu", "cores", "torch_threads", "device"} <= set(r["context"])
     kinds = ("conv_adv", "conv", "conv_recompute", "conv_shared_masks", "gru")
     assert set(r["training_it_s"]) == {f"{k}@2" for k in kinds}
@@ -66,7 +72,7 @@ def test_issue_targets_table_never_fills_a_device_it_did_not_run_on():
     sys.path.insert(0, str(ROOT))
     import torch
 
-    from benchmarks.benchmark import issue_targets
+    from benchmarks.benchmark import arithmetic_bound, issue_targets
 
     inference = {"latency_ms_median_recompute": 20.0, "latency_ms_median_inc": 21.0}
     cli = {"device": "cpu", "ref": "58436ca", "conv_adv": 0.9, "conv_adv_ref": 0.6, "gru": 2.0}
@@ -75,6 +81,14 @@ def test_issue_targets_table_never_fills_a_device_it_did_not_run_on():
     assert len(gpu_rows) == 2 and all(rows[k].startswith("not measured") for k in gpu_rows)
     cpu_row = rows["conv_s2s + regulariser, batch 16, `src.train`, CPU"]
     assert cpu_row.startswith("0.90 it/s, 1.50x commit 58436ca (0.60 it/s)")
+    assert "at most" not in cpu_row  # no bound given
+    bound = arithmetic_bound({"conv_adv@16": 1.25}, 0.6, cli, 16)  # 0.48 s of arithmetic
+    assert abs(bound["s_per_it"] - 0.48) < 1e-12 and abs(bound["x_ref"] - 1 / 0.48 / 0.6) < 1e-12
+    rows = {r[0]: r[1] for r in issue_targets(torch.device("cpu"), cli, inference, {}, bound)}
+    cpu_row = rows["conv_s2s + regulariser, batch 16, `src.train`, CPU"]
+    assert cpu_row.endswith(
+        "; at most 3.47x with everything but the step's convolutions and matrix products free"
+    )
     assert rows["prediction, batch 1, 25 frames"].startswith("20.0 ms CPU")
     cli["device"] = "gpu"
     rows = {
