@@ -273,10 +273,10 @@ def bench_inference(device, repeats, big: int) -> dict:
 ARITHMETIC = re.compile(r"conv|(^|::)(add)?b?mm$")
 
 
-def bench_profile(device, B: int, steps: int, top: int = 8) -> tuple[list[list], float]:
+def bench_profile(device, B: int, steps: int, top: int = 8) -> tuple[list[list], dict]:
     """Where a conv_s2s + adversarial training step spends its time: the operators with the
     most self time (torch.profiler), as [name, share of the step, calls per step]; and the
-    share of the ARITHMETIC operators."""
+    ARITHMETIC operators' share and seconds per step."""
     from torch.profiler import ProfilerActivity, profile
 
     m, data = module("conv_adv", device), batch(B, device, True)
@@ -290,8 +290,9 @@ def bench_profile(device, B: int, steps: int, top: int = 8) -> tuple[list[list],
     events = [e for e in prof.key_averages() if getattr(e, key) > 0]
     total = sum(getattr(e, key) for e in events)
     events.sort(key=lambda e: getattr(e, key), reverse=True)
-    arithmetic = sum(getattr(e, key) for e in events if ARITHMETIC.search(e.key)) / total
-    return [[e.key, getattr(e, key) / total, e.count / steps] for e in events[:top]], arithmetic
+    arithmetic = sum(getattr(e, key) for e in events if ARITHMETIC.search(e.key))
+    rows = [[e.key, getattr(e, key) / total, e.count / steps] for e in events[:top]]
+    return rows, {"share": arithmetic / total, "s_per_it": arithmetic / steps / 1e6}  # us
 
 
 def bench_matmul(device, n: int, repeats: int) -> float:
@@ -365,11 +366,10 @@ def bench_train_cli(device: torch.device, ref: str, iterations: int) -> dict:
     }
 
 
-def arithmetic_bound(train_its: dict, share: float, cli: dict, B: int) -> dict:
+def arithmetic_bound(arithmetic: dict, cli: dict) -> dict:
     """The fastest a conv_s2s + adversarial iteration could run if everything but its
     convolutions and matrix products (at this run's speed of those kernels) took no time."""
-    seconds = share / train_its[f"conv_adv@{B}"]
-    out = {"share": share, "s_per_it": seconds, "its": 1.0 / seconds}
+    out = {**arithmetic, "its": 1.0 / arithmetic["s_per_it"]}
     if cli.get("conv_adv_ref"):
         out["x_ref"] = out["its"] / cli["conv_adv_ref"]
     return out
@@ -496,8 +496,8 @@ def markdown(r: dict) -> str:
         lines += [
             f"| share of that step in convolutions and matrix products (self time) | "
             f"{100 * bound['share']:.1f}% |",
-            "| that arithmetic alone, per iteration s (the bound with everything else free), "
-            f"and as it/s | {bound['s_per_it']:.3f}, {bound['its']:.2f} |",
+            "| that arithmetic alone, s per iteration (profiler self time; the bound with "
+            f"everything else free), and as it/s | {bound['s_per_it']:.3f}, {bound['its']:.2f} |",
         ]
     lines += [
         f"| validation pass (120 windows) s | {r['validation_s']:.3f} |",
@@ -616,11 +616,11 @@ def main(argv: list[str] | None = None) -> dict:
     lat = inference["latency_ms_median_inc"]
     # Compiling takes a minute on the CPU: not in the CI smoke run.
     pred = {} if smoke else bench_compiled_prediction(device, 30)
-    profile, arithmetic_share = bench_profile(device, B0, 1 if smoke else 3)
+    profile, arithmetic = bench_profile(device, B0, 1 if smoke else 5)
     cli = {}
     if not (smoke or args.no_train_cli):
         cli = bench_train_cli(device, args.ref, args.cli_iterations)
-    bound = arithmetic_bound(train_its, arithmetic_share, cli, B0)
+    bound = arithmetic_bound(arithmetic, cli)
     r = {
         "command": "python benchmarks/benchmark.py "
         + " ".join(sys.argv[1:] if argv is None else argv),
@@ -637,7 +637,6 @@ def main(argv: list[str] | None = None) -> dict:
         "data": bench_data(3 if smoke else 200),
         "validation_s": val_s,
         "profile": profile,
-        "arithmetic_share": arithmetic_share,
         # Compiling takes minutes on the CPU: not in the CI smoke run.
         "compile": {} if smoke else bench_compile(device, batches[0], 5),
         "compiled_prediction": pred,
