@@ -290,9 +290,9 @@ def bench_profile(device, B: int, steps: int, top: int = 8) -> tuple[list[list],
     events = [e for e in prof.key_averages() if getattr(e, key) > 0]
     total = sum(getattr(e, key) for e in events)
     events.sort(key=lambda e: getattr(e, key), reverse=True)
-    arithmetic = sum(getattr(e, key) for e in events if ARITHMETIC.search(e.key))
+    arithmetic_us = sum(getattr(e, key) for e in events if ARITHMETIC.search(e.key))
     rows = [[e.key, getattr(e, key) / total, e.count / steps] for e in events[:top]]
-    return rows, {"share": arithmetic / total, "s_per_it": arithmetic / steps / 1e6}  # us
+    return rows, {"share": arithmetic_us / total, "s_per_it": arithmetic_us / steps / 1e6}
 
 
 def bench_matmul(device, n: int, repeats: int) -> float:
@@ -354,8 +354,9 @@ def bench_train_cli(device: torch.device, ref: str, iterations: int) -> dict:
     trainer = "gpu" if device.type == "cuda" else "cpu"
     threads = torch.get_num_threads()
     # Best of 2: single runs of this length varied by 10% on a shared VM.
-    conv = measure(ref, "li2018_h36m", trainer, iterations, iterations // 3, threads, repeats=2)
-    gru = measure(None, "martinez2017_res_sup", trainer, iterations, iterations // 3, threads, 2)
+    short = iterations // 3
+    conv = measure(ref, "li2018_h36m", trainer, iterations, short, threads, repeats=2)
+    gru = measure(None, "martinez2017_res_sup", trainer, iterations, short, threads, repeats=2)
     return {
         "device": trainer,
         "iterations": iterations,
