@@ -294,6 +294,17 @@ def test_wrong_archive_is_reported(tmp_path):
         ensure_dataset("h36m", tmp_path / "data", archive=tmp_path / "x.zip")
 
 
+def test_unwritable_data_dir_is_a_data_error_naming_it(tmp_path):
+    """A data_dir that cannot be created (here a file is in the way; also a read-only folder)."""
+    src = tmp_path / "src"
+    write_synthetic_h36m(src, subjects=(5,), actions=("walking",), raw_frames=10)
+    zip_path = _zip_of(src, tmp_path / "h3.6m.zip")
+    (tmp_path / "taken").write_text("a user's file")
+    with pytest.raises(DataError, match="cannot unpack h3.6m.zip into .*writable folder"):
+        ensure_dataset("h36m", tmp_path / "taken" / "data", archive=zip_path)
+    assert (tmp_path / "taken").read_text() == "a user's file"
+
+
 @pytest.mark.parametrize("spec", [H36M, CMU])
 def test_nothing_found_says_what_to_download_and_where(tmp_path, monkeypatch, spec):
     monkeypatch.delenv("MOTION_ARCHIVES", raising=False)

@@ -158,11 +158,17 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
             f"{archive}: not a zip archive (fix: use {spec.archive_name} as distributed; "
             f"{_how_to_get(spec)})"
         )
-    data_dir.mkdir(parents=True, exist_ok=True)
-    _remove_stale_temps(data_dir, spec)
     tmp = data_dir / f".{spec.root}.unpacking-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
+    try:
+        data_dir.mkdir(parents=True, exist_ok=True)
+        _remove_stale_temps(data_dir, spec)
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+    except OSError as exc:  # read-only, not a folder, or a file in the way
+        raise DataError(
+            f"cannot unpack {archive.name} into {data_dir}: {exc} (fix: point data.data_dir, or "
+            f"{DATA_DIR_ENV}, at a writable folder)"
+        ) from None
     try:
         _extract(archive, spec, tmp)
         if not (tmp / spec.marker).is_dir():
