@@ -305,6 +305,20 @@ def test_unwritable_data_dir_is_a_data_error_naming_it(tmp_path):
     assert (tmp_path / "taken").read_text() == "a user's file"
 
 
+def test_unreadable_archive_is_not_called_damaged(tmp_path):
+    src = tmp_path / "src"
+    write_synthetic_h36m(src, subjects=(5,), actions=("walking",), raw_frames=10)
+    zip_path = _zip_of(src, tmp_path / "h3.6m.zip")
+    zip_path.chmod(0)
+    try:
+        if os.access(zip_path, os.R_OK):
+            pytest.skip("this user reads files whatever their permissions (root)")
+        with pytest.raises(DataError, match="cannot read .*h3.6m.zip.*Permission denied"):
+            ensure_dataset("h36m", tmp_path / "data", archive=zip_path)
+    finally:
+        zip_path.chmod(0o644)
+
+
 @pytest.mark.parametrize("spec", [H36M, CMU])
 def test_nothing_found_says_what_to_download_and_where(tmp_path, monkeypatch, spec):
     monkeypatch.delenv("MOTION_ARCHIVES", raising=False)

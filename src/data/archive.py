@@ -153,6 +153,15 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
     """Safely unpack the dataset folder of ``archive`` into ``data_dir`` (temp dir + rename)."""
     spec = _spec(dataset)
     archive, data_dir = Path(archive), Path(data_dir)
+    # is_zipfile() answers False for a file it cannot open, which would blame the archive.
+    try:
+        with open(archive, "rb"):
+            pass
+    except OSError as exc:
+        raise DataError(
+            f"cannot read {archive}: {exc} (fix: make it readable by this user, or point "
+            "data.archive at a readable copy)"
+        ) from None
     if not zipfile.is_zipfile(archive):
         raise DataError(
             f"{archive}: not a zip archive (fix: use {spec.archive_name} as distributed; "
