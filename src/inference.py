@@ -145,7 +145,8 @@ class MotionForecaster:
     def _frames(self, frames: np.ndarray | Tensor, shape: str) -> Tensor:
         if isinstance(frames, Tensor):
             frames = frames.detach().cpu()
-        x = np.asarray(frames, dtype=np.float32)
+        # Contiguous: torch.as_tensor refuses the negative strides of np.flip or [::-1] views.
+        x = np.asarray(frames, dtype=np.float32, order="C")
         if x.shape[-1:] != (self.num_features,):
             raise InferenceInputError(
                 f"frames must be {shape} raw exp-map with F={self.num_features} columns "

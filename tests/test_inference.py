@@ -187,3 +187,11 @@ def test_compiled_forecaster_predicts_what_the_eager_one_does(
         if t >= 49:
             expected = eager.predict(frames[1, t - 49 : t + 1])
             np.testing.assert_allclose(out, expected, rtol=1e-4, atol=1e-5)
+
+
+def test_reversed_and_flipped_views_are_accepted(forecaster, frames):
+    """np.flip and [::-1] give negative strides, which torch.as_tensor refuses."""
+    x = np.ascontiguousarray(frames[0, :50][::-1])
+    expected = forecaster.predict(x)
+    np.testing.assert_array_equal(forecaster.predict(frames[0, :50][::-1]), expected)
+    np.testing.assert_array_equal(forecaster.predict(np.flip(frames[0, :50], 0)), expected)
