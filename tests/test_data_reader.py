@@ -65,6 +65,15 @@ def test_empty_file(tmp_path):
     assert str(tmp_path / "e.txt") in str(err.value) and "fix:" in str(err.value)
 
 
+def test_unreadable_file(tmp_path):
+    path = _write(tmp_path / "a.txt", _frames())
+    path.chmod(0)
+    if os.access(path, os.R_OK):
+        pytest.skip("this user reads files whatever their permissions (root)")
+    with pytest.raises(DataError, match=r"a\.txt: cannot read the file \(Permission denied\)"):
+        read_motion_file(path, 99)
+
+
 def test_blank_only_file(tmp_path):
     (tmp_path / "b.txt").write_text("\n\n\n")
     with pytest.raises(DataError, match="no data lines"):

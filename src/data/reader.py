@@ -53,6 +53,11 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
             frames = np.loadtxt(path, delimiter=",", dtype=np.float32, ndmin=2, comments=None)
     except (ValueError, UnicodeDecodeError):
         frames = None
+    except OSError as exc:  # e.g. no read permission: numpy would raise from deep inside
+        raise DataError(
+            f"{path}: cannot read the file ({exc.strerror or exc}) (fix: make it readable by "
+            "this user)"
+        ) from None
     if (
         frames is not None
         and frames.shape[0] > 0
