@@ -14,6 +14,7 @@ normalisation (protocol §2.1) and unnormalisation (§2.2) happen here, in raw F
 from __future__ import annotations
 
 import inspect
+import numbers
 from collections import deque
 from pathlib import Path
 
@@ -29,6 +30,16 @@ from src.models.conv_s2s import ConvSeq2Seq
 
 class InferenceInputError(ValueError):
     """Frames or an action given to MotionForecaster that it cannot predict from."""
+
+
+def _check_future_len(future_len: int) -> int:
+    # Checked up front: a float or string would otherwise fail deep in the decoding loop, and
+    # 0 would make a stream return empty forecasts without a word.
+    if not isinstance(future_len, numbers.Integral) or future_len < 1:
+        raise InferenceInputError(
+            f"future_len must be an integer >= 1 (frames to predict), got {future_len!r}"
+        )
+    return int(future_len)
 
 
 def _padding_of(config: dict) -> str:
@@ -175,8 +186,7 @@ class MotionForecaster:
                 f"frames must be ({T}, {F}) or (B, {T}, {F}): the last {T} observed frames; "
                 f"got shape {tuple(np.shape(frames))}"
             )
-        if future_len < 1:
-            raise InferenceInputError(f"future_len must be >= 1, got {future_len}")
+        future_len = _check_future_len(future_len)
         pred = self._run(
             self.normalizer.normalize(x), future_len, action=self._action_ids(action, x.shape[0])
         )
@@ -226,7 +236,7 @@ class ForecastStream:
     """
 
     def __init__(self, forecaster: MotionForecaster, action: str | None, future_len: int):
-        self.fc, self.future_len = forecaster, future_len
+        self.fc, self.future_len = forecaster, _check_future_len(future_len)
         self.action = forecaster._action_ids(action, 1)
         self.buffer: deque[Tensor] = deque(maxlen=forecaster.observed_len)
         self.position = -1  # stream index of the last pushed frame

@@ -195,3 +195,15 @@ def test_reversed_and_flipped_views_are_accepted(forecaster, frames):
     expected = forecaster.predict(x)
     np.testing.assert_array_equal(forecaster.predict(frames[0, :50][::-1]), expected)
     np.testing.assert_array_equal(forecaster.predict(np.flip(frames[0, :50], 0)), expected)
+
+
+@pytest.mark.parametrize("future_len", [0, -3, 2.5, "25"])
+def test_bad_future_len_is_refused_by_predict_and_stream(forecaster, frames, future_len):
+    with pytest.raises(InferenceInputError, match="future_len must be an integer >= 1"):
+        forecaster.predict(frames[0, :50], future_len=future_len)
+    with pytest.raises(InferenceInputError, match="future_len must be an integer >= 1"):
+        forecaster.stream(future_len=future_len)
+
+
+def test_future_len_accepts_numpy_integers(forecaster, frames):
+    assert forecaster.predict(frames[0, :50], future_len=np.int64(3)).shape == (3, F)
