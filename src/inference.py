@@ -155,7 +155,8 @@ class MotionForecaster:
 
     def _frames(self, frames: np.ndarray | Tensor, shape: str) -> Tensor:
         if isinstance(frames, Tensor):
-            frames = frames.detach().cpu()
+            # In torch: bfloat16 has no numpy dtype, so numpy cannot convert it.
+            frames = frames.detach().to("cpu", torch.float32)
         # Contiguous: torch.as_tensor refuses the negative strides of np.flip or [::-1] views.
         x = np.asarray(frames, dtype=np.float32, order="C")
         if x.shape[-1:] != (self.num_features,):

@@ -207,3 +207,11 @@ def test_bad_future_len_is_refused_by_predict_and_stream(forecaster, frames, fut
 
 def test_future_len_accepts_numpy_integers(forecaster, frames):
     assert forecaster.predict(frames[0, :50], future_len=np.int64(3)).shape == (3, F)
+
+
+@pytest.mark.parametrize("dtype", [torch.bfloat16, torch.float16, torch.float64])
+def test_torch_frames_of_any_float_dtype_are_accepted(forecaster, frames, dtype):
+    """bfloat16 (mixed-precision pipelines) has no numpy dtype; .numpy() of it raises."""
+    x = torch.from_numpy(frames[0, :50]).to(dtype)
+    expected = forecaster.predict(x.float().numpy())
+    np.testing.assert_array_equal(forecaster.predict(x), expected)
