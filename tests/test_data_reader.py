@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import zipfile
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from src.data import archive as archive_mod
 from src.data import cache as cache_mod
 from src.data.archive import ensure_dataset, unpack_archive
 from src.data.cache import cache_dir, load_sequences
@@ -312,6 +314,21 @@ def test_unwritable_data_dir_is_a_data_error_naming_it(tmp_path):
     with pytest.raises(DataError, match="cannot unpack h3.6m.zip into .*writable folder"):
         ensure_dataset("h36m", tmp_path / "taken" / "data", archive=zip_path)
     assert (tmp_path / "taken").read_text() == "a user's file"
+
+
+def test_disk_full_while_unpacking_is_a_data_error(tmp_path, monkeypatch):
+    src = tmp_path / "src"
+    write_synthetic_h36m(src, subjects=(5,), actions=("walking",), raw_frames=10)
+    zip_path = _zip_of(src, tmp_path / "h3.6m.zip")
+
+    def disk_full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(archive_mod.shutil, "copyfileobj", disk_full)
+    data = tmp_path / "data"
+    with pytest.raises(DataError, match="cannot unpack h3.6m.zip .*No space left on device"):
+        ensure_dataset("h36m", data, archive=zip_path)
+    assert list(data.iterdir()) == []  # the temp folder went
 
 
 def test_unreadable_archive_is_not_called_damaged(tmp_path):

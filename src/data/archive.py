@@ -195,6 +195,12 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
                     f"{spec.marker}/ (fix: delete {target} and run again)"
                 ) from None
             # else another process finished unpacking first; its copy is as good as ours
+    except OSError as exc:  # disk full or over quota while writing the members
+        raise DataError(
+            f"cannot unpack {archive.name} into {data_dir}: {exc}; nothing was unpacked (fix: "
+            f"free space there, or point data.data_dir, or {DATA_DIR_ENV}, at a writable folder "
+            "with room for it)"
+        ) from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
