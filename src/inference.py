@@ -158,7 +158,13 @@ class MotionForecaster:
             # In torch: bfloat16 has no numpy dtype, so numpy cannot convert it.
             frames = frames.detach().to("cpu", torch.float32)
         # Contiguous: torch.as_tensor refuses the negative strides of np.flip or [::-1] views.
-        x = np.asarray(frames, dtype=np.float32, order="C")
+        try:
+            x = np.asarray(frames, dtype=np.float32, order="C")
+        except (TypeError, ValueError) as err:  # ragged lists (a frame of another length), text
+            raise InferenceInputError(
+                f"frames must be {shape}: a numeric array or tensor of raw exp-map frames, all of "
+                f"the same length; numpy could not convert {type(frames).__name__}: {err}"
+            ) from err
         if x.shape[-1:] != (self.num_features,):
             raise InferenceInputError(
                 f"frames must be {shape} raw exp-map with F={self.num_features} columns "

@@ -215,3 +215,14 @@ def test_torch_frames_of_any_float_dtype_are_accepted(forecaster, frames, dtype)
     x = torch.from_numpy(frames[0, :50]).to(dtype)
     expected = forecaster.predict(x.float().numpy())
     np.testing.assert_array_equal(forecaster.predict(x), expected)
+
+
+def test_ragged_or_non_numeric_frames_raise_clear_errors(forecaster, frames):
+    ragged = [list(f) for f in frames[0, :50]]
+    ragged[7] = ragged[7][:98]  # one frame lost a column
+    with pytest.raises(InferenceInputError, match="numeric array"):
+        forecaster.predict(ragged)
+    with pytest.raises(InferenceInputError, match="numeric array"):
+        forecaster.predict("walking")
+    with pytest.raises(InferenceInputError, match="numeric array"):
+        forecaster.stream().push({"frame": 1})
