@@ -46,6 +46,22 @@ def test_synthetic_files_are_in_the_real_format(tmp_path):
     assert all(line.split(",")[c] == "0.0000000" for line in lines for c in ignored)
 
 
+def test_synthetic_settings_apply_over_files_of_an_earlier_run(tmp_path):
+    def lengths_and_mean(**kwargs):
+        dm = SyntheticDataModule(tmp_path, actions=["walking"], **SMALL, **kwargs)
+        dm.prepare_data()
+        dm.setup("fit")
+        return dm._train_lengths, dm.normalizer.mean.clone()
+
+    default = lengths_and_mean()
+    longer = lengths_and_mean(raw_frames=600)
+    assert longer[0] == [300, 300] and default[0] == [200, 200]
+    reseeded = lengths_and_mean(synthetic_seed=1)
+    assert reseeded[0] == default[0] and not torch.equal(reseeded[1], default[1])
+    again = lengths_and_mean()
+    assert again[0] == default[0] and torch.equal(again[1], default[1])
+
+
 def test_synthetic_module_attributes(synthetic):
     dm = synthetic
     assert (dm.dataset_name, dm.conv_padding, dm.frame_ms) == ("h36m", "same", 40)

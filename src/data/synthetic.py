@@ -9,6 +9,7 @@ harmonics and a little noise, so a model can actually learn to continue it.
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -64,20 +65,28 @@ def write_synthetic_h36m(
     raw_frames: int = 400,
     seed: int = 0,
 ) -> list[Path]:
-    """Write the synthetic files under ``root`` (the data_dir); return their paths."""
+    """Write the synthetic files under ``root`` (the data_dir); return their paths.
+
+    A file that already holds exactly these frames is left alone (so its parsed cache stays
+    valid); one written with other settings (``raw_frames``, ``seed``) is replaced.
+    """
     if raw_frames < 2:
         raise DataError(f"raw_frames must be >= 2, got {raw_frames}")
     root = Path(root)
     paths = []
     for entry in h36m_files(list(subjects), list(actions), "any"):
         frames = synthetic_motion(entry.subject, entry.action, entry.index, raw_frames, seed)
+        text = io.StringIO()
+        np.savetxt(text, frames, fmt="%.7f", delimiter=",")
+        data = text.getvalue().encode()
         path = root / entry.relpath
+        paths.append(path)
+        if path.is_file() and path.read_bytes() == data:
+            continue
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        with open(tmp, "w", newline="\n") as fh:
-            np.savetxt(fh, frames, fmt="%.7f", delimiter=",")
+        tmp.write_bytes(data)
         os.replace(tmp, path)
-        paths.append(path)
     return paths
 
 
@@ -111,12 +120,12 @@ class SyntheticDataModule(H36MDataModule):
         self.synthetic_seed = synthetic_seed
 
     def _locate(self):
-        train, test = self.expected_files()
-        if self._eval_only:  # evaluating a checkpoint: the training files are not needed
-            train = []
-        if any(not (self.data_dir / e.relpath).is_file() for e in train + test):
-            subjects = [*self.train_subjects, self.test_subject]
-            write_synthetic_h36m(
-                self.data_dir, subjects, self.actions, self.raw_frames, self.synthetic_seed
-            )
+        # Always: files an earlier run wrote with another raw_frames or synthetic_seed must not
+        # silently stand in for the ones these settings describe.
+        subjects = (
+            [self.test_subject] if self._eval_only else [*self.train_subjects, self.test_subject]
+        )
+        write_synthetic_h36m(
+            self.data_dir, subjects, self.actions, self.raw_frames, self.synthetic_seed
+        )
         return super()._locate()
