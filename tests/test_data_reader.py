@@ -365,6 +365,9 @@ def test_nothing_found_says_what_to_download_and_where(tmp_path, monkeypatch, sp
 def test_missing_explicit_archive_path(tmp_path):
     with pytest.raises(DataError, match="does not exist"):
         ensure_dataset("h36m", tmp_path / "data", archive=tmp_path / "nope.zip")
+    # A folder that exists but does not hold the archive: the message names the missing zip.
+    with pytest.raises(DataError, match=f"{tmp_path / 'h3.6m.zip'} does not exist"):
+        ensure_dataset("h36m", tmp_path / "data", archive=tmp_path)
 
 
 @pytest.fixture

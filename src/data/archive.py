@@ -79,8 +79,9 @@ def _find_archive(
         if path.is_dir():
             path = path / spec.archive_name
         if not path.is_file():
+            # Name the file looked for: a folder given as data.archive exists, its zip does not.
             raise DataNotFoundError(
-                f"data.archive={text} does not exist (fix: point data.archive to "
+                f"data.archive={text}: {path} does not exist (fix: point data.archive to "
                 f"{spec.archive_name} or to the folder that holds it; {_how_to_get(spec)})"
             )
         return path
