@@ -303,6 +303,9 @@ def test_wrong_archive_is_reported(tmp_path):
     (tmp_path / "x.zip").write_text("not a zip")
     with pytest.raises(DataError, match="not a zip archive"):
         ensure_dataset("h36m", tmp_path / "data", archive=tmp_path / "x.zip")
+    (tmp_path / "cut.zip").write_bytes(zip_path.read_bytes()[:-100])  # a download cut short
+    with pytest.raises(DataError, match=r"cut.zip: an incomplete zip archive .*interrupted"):
+        ensure_dataset("h36m", tmp_path / "data", archive=tmp_path / "cut.zip")
 
 
 def test_unwritable_data_dir_is_a_data_error_naming_it(tmp_path):

@@ -156,17 +156,22 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
     archive, data_dir = Path(archive), Path(data_dir)
     # is_zipfile() answers False for a file it cannot open, which would blame the archive.
     try:
-        with open(archive, "rb"):
-            pass
+        with open(archive, "rb") as fh:
+            head = fh.read(4)
     except OSError as exc:
         raise DataError(
             f"cannot read {archive}: {exc} (fix: make it readable by this user, or point "
             "data.archive at a readable copy)"
         ) from None
     if not zipfile.is_zipfile(archive):
+        # A zip's directory is at its end: a download cut short starts like a zip but has none.
+        what = (
+            "an incomplete zip archive (its end is missing: an interrupted download or copy?)"
+            if head == b"PK\x03\x04"
+            else "not a zip archive"
+        )
         raise DataError(
-            f"{archive}: not a zip archive (fix: use {spec.archive_name} as distributed; "
-            f"{_how_to_get(spec)})"
+            f"{archive}: {what} (fix: use {spec.archive_name} as distributed; {_how_to_get(spec)})"
         )
     tmp = data_dir / f".{spec.root}.unpacking-{os.getpid()}"
     try:
