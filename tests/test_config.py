@@ -122,3 +122,46 @@ def test_eval_settings_are_validated(override, message, tmp_path):
     cfg = compose_config("eval", ["model=zero_velocity", "data=h36m", override], tmp_path)
     with pytest.raises(ConfigError, match=message):
         validate_eval_config(cfg)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["iterations=abc"], r"iterations='abc' must be a whole number"),
+        (["iterations=1.5"], r"iterations=1.5 must be a whole number"),
+        (["val_every=abc"], r"val_every='abc' must be a whole number"),
+        (["seed=abc"], r"seed='abc' must be a whole number"),
+        (["data.batch_size=abc"], r"data.batch_size='abc' must be a whole number"),
+        (["checkpoint_every=abc"], r"checkpoint_every='abc' must be a whole number"),
+        (["checkpoint_every=-1"], r"checkpoint_every=-1 must be >= 0"),
+        (["progress_every_s=abc"], r"progress_every_s='abc' must be a number"),
+        (["model.optimizer.lr=abc"], r"model.optimizer.lr='abc' must be a number"),
+        (["sampling.eta=abc"], r"sampling.eta='abc' must be a number"),
+        (["model.lr_decay_gamma=abc"], r"model.lr_decay_gamma='abc' must be a number"),
+        (["compile.enabled=maybe"], r"compile.enabled='maybe': use true, false or auto"),
+    ],
+)
+def test_values_of_the_wrong_type_are_rejected_before_training(
+    overrides, message, tmp_path, synthetic_data_dir
+):
+    """A word where a number belongs used to fail inside a comparison, with a traceback
+    (iterations=abc), or be truncated (iterations=1.5 ran as 1)."""
+    from src.lit.factory import ConfigError
+    from src.lit.validation import validate_train_config
+
+    cfg = compose_config("train", ["data=synthetic", *overrides], tmp_path, synthetic_data_dir)
+    with pytest.raises(ConfigError, match=message):
+        validate_train_config(cfg)
+
+
+def test_cli_value_of_the_wrong_type_is_one_line(tmp_path, synthetic_data_dir):
+    proc = run_module(
+        "src.train",
+        "data=synthetic",
+        "iterations=abc",
+        data_dir=synthetic_data_dir,
+        log_dir=tmp_path,
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "iterations='abc' must be a whole number" in proc.stderr
+    assert "Traceback" not in proc.stderr

@@ -315,11 +315,64 @@ def _require(ok: bool, message: str) -> None:
         raise ConfigError(message)
 
 
+# The numbers training reads, which Hydra takes as given: a word (iterations=abc) would fail
+# inside a comparison below with a traceback, and int() would truncate iterations=1.5 to 1.
+_WHOLE_NUMBERS = (
+    "iterations",
+    "val_every",
+    "seed",
+    "checkpoint_every",
+    "media_every",
+    "data.batch_size",
+    "data.future_len",
+    "data.observed_len",
+    "model.net.C",
+    "model.lr_decay_every",
+    "sampling.steps",
+)
+_NUMBERS = (
+    "progress_every_s",
+    "model.optimizer.lr",
+    "model.lambda_2",
+    "model.lr_decay_gamma",
+    "model.grad_clip_norm",
+    "adversarial.optimizer.lr",
+    "adversarial.lambda_adv",
+    "adversarial.lambda_2",
+    "sampling.eta",
+    "sampling.start",
+    "sampling.end",
+    "sampling.k",
+)
+
+
+def _check_number_types(cfg: DictConfig) -> None:
+    for key in _WHOLE_NUMBERS + _NUMBERS:
+        value = OmegaConf.select(cfg, key, default=None)
+        if value is None:
+            continue
+        whole = isinstance(value, int) and not isinstance(value, bool)
+        if key in _WHOLE_NUMBERS:
+            _require(whole, f"{key}={value!r} must be a whole number.")
+        else:
+            _require(whole or isinstance(value, float), f"{key}={value!r} must be a number.")
+
+
 def validate_train_config(cfg: DictConfig) -> None:
     """Out-of-range values are rejected here, naming the allowed range."""
     check_trainable(cfg)  # first: a baseline's config lacks what the checks below read
     check_constructor_keys(cfg)
+    _check_number_types(cfg)
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
+    every = cfg.get("checkpoint_every")
+    if every is not None:
+        # A negative period divides every iteration: last.ckpt would be written at each one.
+        _require(every >= 0, f"checkpoint_every={every} must be >= 0 iterations (0: off).")
+    compile_on = cfg.get("compile", {}).get("enabled", "auto")
+    _require(
+        compile_on in (True, False, "auto"),
+        f"compile.enabled={compile_on!r}: use true, false or auto (on a CUDA device).",
+    )
     _require(cfg.val_every > 0, f"val_every={cfg.val_every} must be a positive integer.")
     _require(cfg.data.batch_size > 0, f"data.batch_size={cfg.data.batch_size} must be > 0.")
     _require(cfg.data.future_len >= 1, f"data.future_len={cfg.data.future_len} must be >= 1 frame.")
