@@ -141,13 +141,26 @@ def _writer(fmt: str, fps: float):
     return PillowWriter(fps=fps), "gif"
 
 
+def _check_settings(cfg: DictConfig) -> None:
+    """Hydra passes values as typed: a word would fail deep in the drawing with a traceback,
+    int() would show window 1 for window=1.5, and any non-empty word would read as true."""
+    # window's range depends on the action: select_window names it.
+    for key, least in (("window", None), ("observed_shown", 1), ("strip_step", 1)):
+        value = cfg[key]
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(f"{key}={value!r} must be a whole number")
+        if least is not None and value < least:
+            raise ConfigError(f"{key}={value} must be >= {least}")
+    if not isinstance(cfg.baseline, bool):
+        raise ConfigError(f"baseline={cfg.baseline!r} must be true or false")
+
+
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
     matplotlib.use("Agg")
     if cfg.format not in FORMATS:
         raise ConfigError(f"format={cfg.format!r}: choose one of {', '.join(FORMATS)}")
-    if cfg.observed_shown < 1:
-        raise ConfigError(f"observed_shown={cfg.observed_shown} must be >= 1 frame")
+    _check_settings(cfg)
     validate_eval_config(cfg)
     dm, module, model_cfg, dataset = load_for_eval(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)

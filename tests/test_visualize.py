@@ -62,6 +62,28 @@ def test_visualize_command_writes_gif_and_strip(tmp_path, synthetic_data_dir):
     assert first == 0 and _green_pixels(anim) > 50
 
 
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("window=abc", "window='abc' must be a whole number"),
+        ("window=1.5", "window=1.5 must be a whole number"),
+        ("observed_shown=abc", "observed_shown='abc' must be a whole number"),
+        ("observed_shown=0", "observed_shown=0 must be >= 1"),
+        ("strip_step=0", "strip_step=0 must be >= 1"),
+        ("strip_step=-2", "strip_step=-2 must be >= 1"),
+        ("baseline=nope", "baseline='nope' must be true or false"),
+    ],
+)
+def test_visualize_settings_of_the_wrong_type_or_range_are_refused(override, message, tmp_path):
+    """window=abc, observed_shown=abc and strip_step=0 used to end in a traceback; window=1.5
+    drew window 1 into a file named w1.5, baseline=nope drew the baseline."""
+    from src.visualize import visualize
+
+    cfg = compose_config("visualize", ["model=zero_velocity", "data=h36m", override], tmp_path)
+    with pytest.raises(ConfigError, match=message):
+        visualize(cfg)
+
+
 @pytest.fixture(scope="module")
 def synthetic_baseline(tmp_path_factory, synthetic_data_dir):
     cfg = compose_config(
