@@ -202,6 +202,28 @@ def test_misspelt_key_in_train_config_names_the_close_matches(monkeypatch, capsy
     assert not called
 
 
+@pytest.mark.parametrize("entry", ["eval", "visualize"])
+def test_key_of_a_group_left_unchosen_says_to_choose_it(entry, monkeypatch, capsys):
+    """src.eval ckpt_path=... data.allow_partial=true (as --help lists it): the data comes from
+    the checkpoint, so no data option is chosen; the message used to be "data.allow_partial:
+    no such key. Did you mean data.allow_partial?"."""
+    from src.lit.validation import hydra_entry
+
+    called = []
+    main = hydra_entry(entry)(lambda cfg: called.append(cfg))
+    monkeypatch.setattr(sys, "argv", [entry, "ckpt_path=a.ckpt", "data.allow_partial=true"])
+    with pytest.raises(SystemExit) as info:
+        main()
+    assert info.value.code == 2 and not called
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert err.startswith(
+        "error: data.allow_partial: no data option is chosen, so there is no data.allow_partial "
+        "to set. Choose one before it: data=cmu|h36m|synthetic data.allow_partial=<value>"
+    ), err
+    assert "Did you mean data.allow_partial" not in err
+
+
 def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic_data_dir):
     proc = run_module(
         "src.train",

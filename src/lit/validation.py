@@ -204,6 +204,17 @@ def unknown_key_message(key: str, config: dict | None, groups: list[str] = ()) -
         node, depth = node[parts[depth]], depth + 1
     prefix, rest = parts[:depth], parts[depth + 1 :]
     where = ".".join(prefix) or "the top level"
+    if depth == 0 and rest and parts[0] in groups:
+        # A group the config leaves empty (eval's data and model: a checkpoint brings its
+        # own): its keys exist once an option is chosen, so naming the key itself as the
+        # close match would not help.
+        group = parts[0]
+        options = "|".join(sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
+        return (
+            f"{key}: no {group} option is chosen, so there is no {key} to set. Choose one "
+            f"before it: {group}={options} {key}=<value> (with ckpt_path=, the checkpoint's "
+            f"own {group})."
+        )
     if not isinstance(node, dict):
         return (
             f"{key}: {'.'.join(prefix)} is a value, not a group of settings, so it has no "
