@@ -8,7 +8,8 @@ Reads the results.json files written by `python -m src.eval` and draws one line 
 the average row (mean over the evaluated actions, protocol §4.1 step 6) or one action.
 `published=true` adds the paper's curve, dashed, where results.json carries one.
 Arguments are `key=value` pairs (OmegaConf's command-line syntax); `out` defaults to
-outputs/plots/errors_<metric>_<action>.png.
+outputs/plots/errors_<metric>_<action>.png (-1, -2, ... when taken). No file is written over:
+an `out` that exists is refused.
 
 Each line is labelled by its run's name and dataset ("zero_velocity (cmu)"), told apart further
 where two would read the same. All files must come from one dataset: errors on different
@@ -23,6 +24,7 @@ import sys
 from pathlib import Path
 
 import matplotlib
+from matplotlib.backend_bases import FigureCanvasBase
 from omegaconf import OmegaConf
 
 from src.lit.factory import PROJECT_ROOT, ConfigError
@@ -37,7 +39,7 @@ OPTIONS = {
     "action": "NAME|average  one action, or the mean over the evaluated actions (default)",
     "labels": "[name,...]  legend entries, one per results file (default: run name and dataset)",
     "published": "true|false  add the paper's curve, dashed, where the results carry one",
-    "out": "PATH.png  where to write (default outputs/plots/errors_<metric>_<action>.png)",
+    "out": "PATH.png  a new file (default outputs/plots/errors_<metric>_<action>[-N].png)",
 }
 
 
@@ -104,6 +106,8 @@ def plot_errors(
         raise ConfigError("results=[...] is empty: give at least one results.json")
     if labels is not None and len(labels) != len(paths):
         raise ConfigError(f"labels has {len(labels)} entries for {len(paths)} results files")
+    out = Path(out)
+    check_out(out)
     results = [read_results(path) for path in paths]
     datasets = one_dataset(results, paths)
     names = legend_labels(results, paths) if labels is None else list(labels)
@@ -128,10 +132,34 @@ def plot_errors(
         ylabel=f"{METRICS[metric]} ({unit})" if metric == "mpjpe" else METRICS[metric],
         dashed=dashed,
     )
-    out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out)
     return out
+
+
+def check_out(out: Path) -> None:
+    """A plot is the user's: never written over. savefig would replace an existing file, add
+    .png to a name without an extension (printed without it) and fail on an unknown one."""
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if out.suffix.lstrip(".").lower() not in formats:
+        raise ConfigError(
+            f"out={out} has no image extension matplotlib writes; end it in .png, .pdf or .svg "
+            f"(or {', '.join(f'.{f}' for f in sorted(formats) if f not in ('png', 'pdf', 'svg'))})"
+        )
+    if out.exists():
+        raise ConfigError(
+            f"out={out} already exists; nothing was overwritten. Give another out=, or remove "
+            "the file first."
+        )
+
+
+def free_path(path: Path) -> Path:
+    """`path`, or `<stem>-1<suffix>`, `-2`, ... where that exists (the default out=)."""
+    candidate, n = path, 0
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
+    return candidate
 
 
 def one_dataset(results: list[dict], paths: list) -> list[str]:
@@ -216,7 +244,9 @@ def main(argv: list[str] | None = None) -> Path | None:
         raise ConfigError("say which runs to plot: results=[path/to/results.json,...]")
     paths = [str(p) for p in (results if OmegaConf.is_list(results) else [results])]
     metric, action = args.get("metric", "euler"), args.get("action", "average")
-    out = args.get("out") or PROJECT_ROOT / "outputs" / "plots" / f"errors_{metric}_{action}.png"
+    out = args.get("out") or free_path(
+        PROJECT_ROOT / "outputs" / "plots" / f"errors_{metric}_{action}.png"
+    )
     labels = args.get("labels")
     written = plot_errors(
         paths,

@@ -376,6 +376,34 @@ def test_plot_errors_draws_distinct_legend_entries(tmp_path):
         plot_errors(runs, tmp_path / "f.png", labels=["x", "x"])
 
 
+def test_plot_errors_never_writes_over_a_file(tmp_path, monkeypatch, capsys):
+    """A second plot to the same out= used to replace the first silently, and so did every
+    plot with the default out (outputs/plots/errors_<metric>_<action>.png); out=<a folder>
+    wrote <folder>.png while printing the folder, and out=e.xyz ended in a traceback."""
+    import src.plot_errors as plot_errors_module
+
+    run = _results(tmp_path / "a" / "results.json", "zero_velocity", "h36m")
+    out = plot_errors_module.plot_errors([run], tmp_path / "e.png")
+    first = out.read_bytes()
+    for target, message in [
+        (out, "already exists; nothing was overwritten"),
+        (tmp_path / "a", "has no image extension"),
+        (tmp_path / "e.xyz", "has no image extension"),
+    ]:
+        with pytest.raises(ConfigError, match=message):
+            plot_errors_module.plot_errors([run], target, action="walking")
+    assert out.read_bytes() == first and not (tmp_path / "a.png").exists()
+    # Without out= each plot gets its own file, as run folders do.
+    monkeypatch.setattr(plot_errors_module, "PROJECT_ROOT", tmp_path)
+    written = [plot_errors_module.main([f"results=[{run}]"]) for _ in range(3)]
+    assert [p.name for p in written] == [
+        "errors_euler_average.png",
+        "errors_euler_average-1.png",
+        "errors_euler_average-2.png",
+    ]
+    assert all(p.is_file() for p in written)
+
+
 def test_plot_errors_shows_no_published_curve_for_synthetic_results(tmp_path, monkeypatch):
     import src.plot_errors as plot_errors_module
 
