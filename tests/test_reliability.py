@@ -255,6 +255,23 @@ def test_damaged_or_foreign_checkpoint_gives_checkpoint_error(content, message, 
         read_checkpoint(path)
 
 
+def test_a_folder_given_as_checkpoint_names_the_files_in_it(tmp_path):
+    """ckpt_path=<run>/checkpoints used to suggest <run>/checkpoints/checkpoints/last.ckpt,
+    a file that cannot exist."""
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    for name in ("best-epoch001.ckpt", "last.ckpt"):
+        (run / "checkpoints" / name).write_bytes(b"")
+    best, last = run / "checkpoints" / "best-epoch001.ckpt", run / "checkpoints" / "last.ckpt"
+    for folder in (run, run / "checkpoints"):
+        with pytest.raises(CheckpointError, match="is a folder") as info:
+            read_checkpoint(folder)
+        assert f"give a checkpoint file: {best} or {last}" in str(info.value)
+        assert "checkpoints/checkpoints" not in str(info.value)
+    with pytest.raises(CheckpointError, match=rf"is a folder; .* e.g. {tmp_path}/checkpoints/last"):
+        read_checkpoint(tmp_path)  # no checkpoint anywhere: the layout of a run
+
+
 def test_eval_needs_no_training_files(trained, h36m_dir, tmp_path):
     """The statistics travel in the checkpoint: evaluation of a copy holding only the S5 test
     files works, writes into its own outputs/eval/ folder and recreates no training file."""

@@ -185,6 +185,12 @@ class BestCheckpoint(ModelCheckpoint):
 def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
     if path.is_dir():
+        # Name the files that are there: the folder may be a run's or its checkpoints/.
+        found = sorted(path.glob("*.ckpt")) or sorted(path.glob("checkpoints/*.ckpt"))
+        if found:
+            raise CheckpointError(
+                f"{path} is a folder; give a checkpoint file: {' or '.join(map(str, found))}"
+            )
         raise CheckpointError(
             f"{path} is a folder; give a checkpoint file inside it, e.g. "
             f"{path / 'checkpoints' / LAST}"
