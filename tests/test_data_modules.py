@@ -242,6 +242,7 @@ def test_module_unpacks_an_archive(tmp_path, monkeypatch):
         ({"train_subjects": (1, 2)}, r"unknown H3.6M subject.*\[2\]"),
         ({"train_subjects": (1, 5)}, r"test_subject=5 is also a training subject"),
         ({"future_len": 101}, r"srnn test windows reserve 150 frames"),
+        ({"eval_seed": 2**32}, r"eval_seed must be below 2\*\*32"),
     ],
 )
 def test_invalid_arguments(tmp_path, kwargs, pattern):

@@ -106,6 +106,8 @@ class MotionDataModule(L.LightningDataModule):
         self.eval_windows_per_action = _positive("eval_windows_per_action", eval_windows_per_action)
         self.eval_stride = _positive("eval_stride", eval_stride)
         self.eval_seed = _positive("eval_seed", eval_seed, 0)
+        if self.eval_seed >= 2**32:  # the protocol's RandomState would refuse it deep in setup()
+            raise DataError(f"data.eval_seed must be below 2**32 (4294967296), got {eval_seed}")
         self.allow_partial = bool(allow_partial)
         self.num_workers = _positive("num_workers", num_workers, 0)
         self.seed = _positive("seed", seed, 0)
