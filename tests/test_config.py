@@ -131,6 +131,8 @@ def test_eval_settings_are_validated(override, message, tmp_path):
         (["iterations=1.5"], r"iterations=1.5 must be a whole number"),
         (["val_every=abc"], r"val_every='abc' must be a whole number"),
         (["seed=abc"], r"seed='abc' must be a whole number"),
+        (["seed=-3"], r"seed=-3 must lie in \[0, 2\*\*32 - 1\]"),
+        (["seed=4294967296"], r"seed=4294967296 must lie in"),
         (["data.batch_size=abc"], r"data.batch_size='abc' must be a whole number"),
         (["checkpoint_every=abc"], r"checkpoint_every='abc' must be a whole number"),
         (["checkpoint_every=-1"], r"checkpoint_every=-1 must be >= 0"),

@@ -375,6 +375,9 @@ def validate_train_config(cfg: DictConfig) -> None:
     check_constructor_keys(cfg)
     _check_number_types(cfg)
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
+    seed = cfg.get("seed")
+    if seed is not None:  # Lightning's seed_everything would raise numpy's range error
+        _require(0 <= seed < 2**32, f"seed={seed} must lie in [0, 2**32 - 1].")
     every = cfg.get("checkpoint_every")
     if every is not None:
         # A negative period divides every iteration: last.ckpt would be written at each one.
