@@ -42,6 +42,23 @@ def _check_future_len(future_len: int) -> int:
     return int(future_len)
 
 
+def _device(device: str | torch.device) -> torch.device:
+    # torch's own errors here are an assertion ("Torch not compiled with CUDA enabled") at the
+    # first copy, or a list of every device type for a name like "gpu".
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as err:
+        raise InferenceInputError(
+            f"device={device!r} is not a torch device; use 'cpu', 'cuda' or 'cuda:N'"
+        ) from err
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise InferenceInputError(
+            f"device={device!r}, but this torch ({torch.__version__}) sees no CUDA device; "
+            "use device='cpu'"
+        )
+    return dev
+
+
 def _padding_of(config: dict) -> str:
     """The conv padding that `padding: auto` resolved to (protocol §6.7: SAME H3.6M, VALID CMU)."""
     target = config.get("data", {}).get("_target_")
@@ -120,7 +137,7 @@ class MotionForecaster:
         asked for."""
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {compile!r}")
-        self.device = torch.device(device)
+        self.device = _device(device)
         self.net = net.to(self.device).eval()
         self.compiled = compile is True or (compile == "auto" and self.device.type == "cuda")
         self._run = compile_for_prediction(self.net) if self.compiled else self.net

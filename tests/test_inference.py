@@ -103,6 +103,15 @@ def test_bad_inputs_raise_clear_errors(forecaster, frames):
         MotionForecaster.from_checkpoint("/nonexistent/last.ckpt")
 
 
+def test_a_device_that_cannot_be_used_is_refused_by_name(ckpt_path, monkeypatch):
+    with pytest.raises(InferenceInputError, match="device='gpu' is not a torch device"):
+        MotionForecaster.from_checkpoint(ckpt_path, device="gpu")
+    # As on a machine without CUDA (torch would assert at the first copy to the device).
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(InferenceInputError, match="device='cuda', but this torch .* no CUDA"):
+        MotionForecaster.from_checkpoint(ckpt_path, device="cuda")
+
+
 def test_stream_matches_predict_on_each_window(forecaster, frames):
     stream = forecaster.stream()
     seq = frames[0]
