@@ -19,6 +19,7 @@ from pathlib import Path
 
 import hydra
 import lightning as L
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from src.lit.checkpoints import module_from_checkpoint, read_checkpoint
@@ -29,7 +30,8 @@ from src.lit.factory import (
     git_commit,
     register_resolvers,
 )
-from src.lit.validation import hydra_entry, validate_eval_config
+from src.lit.runs import discard_unstarted_run
+from src.lit.validation import USER_ERRORS, hydra_entry, validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
 
@@ -148,7 +150,13 @@ def evaluate(cfg: DictConfig) -> dict:
 
 @hydra_entry("eval")
 def main(cfg: DictConfig) -> None:
-    evaluate(cfg)
+    try:
+        evaluate(cfg)
+    except USER_ERRORS:
+        # Refused (a bad checkpoint, missing data): as with src.train, its folder goes, so a
+        # refused evaluation leaves nothing behind beside the ones that wrote results.
+        discard_unstarted_run(HydraConfig.get().runtime.output_dir, started="results.json")
+        raise
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 import torch
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from src.data.base import MotionDataModule
@@ -32,7 +33,8 @@ from src.data.synthetic import SyntheticDataModule
 from src.eval import load_for_eval
 from src.lit.factory import ConfigError, register_resolvers
 from src.lit.predictor import MotionPredictor
-from src.lit.validation import hydra_entry, validate_eval_config
+from src.lit.runs import discard_unstarted_run
+from src.lit.validation import USER_ERRORS, hydra_entry, validate_eval_config
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.models.baselines import ZeroVelocity
 from src.reporting.plots import PoseRow, animate, frame_strip
@@ -194,7 +196,13 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
 
 @hydra_entry("visualize")
 def main(cfg: DictConfig) -> None:
-    visualize(cfg)
+    try:
+        visualize(cfg)
+    except USER_ERRORS:
+        # Refused before drawing (the pictures are written last): its folder goes, as a
+        # refused src.train or src.eval leaves nothing behind.
+        discard_unstarted_run(HydraConfig.get().runtime.output_dir, started=None)
+        raise
 
 
 if __name__ == "__main__":

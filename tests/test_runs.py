@@ -284,6 +284,25 @@ def test_refused_config_creates_no_run_folder(refused, tmp_path, synthetic_data_
     assert not log_dir.exists() or not list(log_dir.rglob("*")), list(log_dir.rglob("*"))
 
 
+@pytest.mark.parametrize(
+    ("module", "refused"),
+    [
+        ("src.eval", ["ckpt_path=/nonexistent/last.ckpt"]),
+        ("src.eval", ["model=zero_velocity", "data=synthetic", "data.actions=[walkin]"]),
+        ("src.visualize", ["model=zero_velocity", "data=synthetic", "action=walkin"]),
+    ],
+    ids=["eval_checkpoint", "eval_data", "visualize"],
+)
+def test_refused_eval_or_visualize_creates_no_folder(module, refused, tmp_path, synthetic_data_dir):
+    """As for src.train: a refusal found after the folder was claimed (a missing checkpoint, a
+    misspelt action) used to leave a folder with the log and Hydra's files behind."""
+    log_dir = tmp_path / "logs"
+    proc = _cli(module, log_dir, synthetic_data_dir, *refused)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    _error_line(proc)
+    assert not log_dir.exists() or not list(log_dir.rglob("*")), list(log_dir.rglob("*"))
+
+
 def test_a_named_folder_holding_a_run_is_left_untouched(tmp_path, synthetic_data_dir):
     """hydra.run.dir=<a run's folder>: refused before Hydra writes anything (it used to
     replace the run's .hydra/config.yaml and overrides.yaml)."""
