@@ -469,3 +469,14 @@ def test_fast_dev_run_writes_nothing_heavy_where_the_readme_says(tmp_path, synth
     written = sorted(str(p.relative_to(run)) for p in run.rglob("*") if p.is_file())
     assert not [p for p in written if p.endswith(".ckpt") or "tfevents" in p], written
     assert "outputs/debug" in (ROOT / "README.md").read_text()
+
+
+def test_resume_names_the_run_folder_or_its_checkpoints_folder(tmp_path):
+    """resume=<run>/checkpoints used to look for <run>/checkpoints/checkpoints/last.ckpt."""
+    from src.lit.runs import checkpoint_to_resume
+
+    last = tmp_path / "run" / "checkpoints" / "last.ckpt"
+    last.parent.mkdir(parents=True)
+    last.write_bytes(b"")
+    for given in (last.parent.parent, last.parent, last):
+        assert checkpoint_to_resume(OmegaConf.create({"resume": str(given)})) == last

@@ -176,7 +176,9 @@ def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
     if not resume:
         return Path(str(ckpt)) if ckpt else None
     path = Path(str(resume))
-    target = path / "checkpoints" / LAST if path.is_dir() else path
+    target = path
+    if path.is_dir():  # the run folder, or its checkpoints/ (named, too, by a user)
+        target = path / LAST if (path / LAST).is_file() else path / "checkpoints" / LAST
     if ckpt and Path(str(ckpt)) != target:
         raise ConfigError(
             f"resume={resume} and ckpt_path={ckpt} name different checkpoints; give only one."
