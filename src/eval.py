@@ -140,7 +140,9 @@ def evaluate(cfg: DictConfig) -> dict:
     }
     markdown = "\n\n".join(t.to_markdown() for t in tables)
     (out_dir / "results.md").write_text(markdown + "\n")
-    (out_dir / "results.csv").write_text("".join(t.to_csv() for t in tables))
+    # One header for both tables: a second one would be read as a row of data.
+    csv_text = "".join(t.to_csv(header=i == 0) for i, t in enumerate(tables))
+    (out_dir / "results.csv").write_text(csv_text)
     result = {"provenance": provenance, "tables": [t.to_dict() for t in tables]}
     (out_dir / "results.json").write_text(json.dumps(result, indent=2))
     print(markdown)

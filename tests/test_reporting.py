@@ -180,7 +180,8 @@ def test_markdown_without_published_and_mpjpe_decimals():
 
 def test_csv_long_format():
     rows = list(csv.DictReader(io.StringIO(make_table().to_csv())))
-    assert list(rows[0]) == ["action", "ms", "value", "published", "note"]
+    assert list(rows[0]) == ["metric", "action", "ms", "value", "published", "note"]
+    assert {r["metric"] for r in rows} == {"Euler-angle error"}
     assert len(rows) == 4 * 4 + 4  # 4 actions x 4 horizons + average
     walking80 = rows[0]
     assert (walking80["action"], walking80["ms"]) == ("walking", "80")
@@ -408,3 +409,30 @@ def test_table_from_dict_round_trips():
     assert back.average() == pytest.approx(table.average())
     assert back.published_label == "label"
     assert table_from_dict(table.to_dict()).published is None
+
+
+def test_results_csv_of_eval_is_one_table_that_tells_the_metrics_apart(
+    tmp_path, synthetic_data_dir
+):
+    """results.csv holds the Euler and the MPJPE table: read as one CSV, each row says which
+    metric it is, and no header line stands among the data."""
+    from src.eval import evaluate
+    from tests.conftest import compose_config
+
+    cfg = compose_config(
+        "eval",
+        ["model=zero_velocity", "data=synthetic", "trainer=cpu"],
+        tmp_path,
+        synthetic_data_dir,
+    )
+    result = evaluate(cfg)
+    rows = list(csv.DictReader(io.StringIO((tmp_path / "results.csv").read_text())))
+    assert list(rows[0]) == ["metric", "action", "ms", "value", "published", "note"]
+    assert not [r for r in rows if r["action"] == "action"]
+    for table in result["tables"]:
+        walking = [
+            r
+            for r in rows
+            if (r["metric"], r["action"], r["ms"]) == (table["metric"], "walking", "80")
+        ]
+        assert [float(r["value"]) for r in walking] == [table["values"]["walking"]["80"]]

@@ -247,15 +247,18 @@ class ResultTable:
         lines += _footer(self, self._average_note(), notes)
         return "\n".join(lines) + "\n"
 
-    def to_csv(self) -> str:
-        """Long format: action, ms, value, published, note (one row per action and horizon).
+    def to_csv(self, header: bool = True) -> str:
+        """Long format: metric, action, ms, value, published, note (one row per action and
+        horizon).
 
         Absent actions have value "absent" and the reason in note; the average row says in note
-        which actions it covers. Values are written at full precision.
+        which actions it covers. Values are written at full precision. The metric column, and
+        header=False for all but the first, let several tables share one CSV (results.csv).
         """
         buf = io.StringIO()
         writer = csv.writer(buf, lineterminator="\n")
-        writer.writerow(["action", "ms", "value", "published", "note"])
+        if header:
+            writer.writerow(["metric", "action", "ms", "value", "published", "note"])
 
         def published(action: str, ms: int) -> str:
             pub = self._published(action, ms)
@@ -273,17 +276,17 @@ class ResultTable:
                         published(action, ms),
                         "",
                     ]
-                writer.writerow(row)
+                writer.writerow([self.metric, *row])
         average = self.average()
         if average is not None:
             for ms in self.horizons_ms:
                 row = [AVERAGE, ms, repr(average[ms]), published(AVERAGE, ms), self._average_note()]
-                writer.writerow(row)
+                writer.writerow([self.metric, *row])
             printed = self.published_as_printed()
             note = f"the paper's own average, over {printed_scope(self.published)}"
             for ms in self.horizons_ms:
                 if ms in printed:
-                    writer.writerow([AS_PRINTED, ms, "", repr(printed[ms]), note])
+                    writer.writerow([self.metric, AS_PRINTED, ms, "", repr(printed[ms]), note])
         return buf.getvalue()
 
     def to_dict(self) -> dict:
