@@ -81,7 +81,8 @@ EXPERIMENT_PUBLISHED: dict[str, dict | None] = {
 }
 
 # Config keys that do not make two runs different experiments: the seed, where files live,
-# the device, and how often files are written.
+# the device, and how often files are written or progress printed (with torch.compile, the
+# settings src.lit.runs lets a resume change because they do not change what a run computes).
 # A resumed run is the run it continues: `resume` and `ckpt_path` name where it came from.
 IGNORED_KEYS = (
     "seed",
@@ -90,11 +91,13 @@ IGNORED_KEYS = (
     "resume",
     "checkpoint_every",
     "media_every",
+    "progress_every_s",
     "task_name",
 )
 IGNORED_PREFIXES = (
     "paths.",
     "trainer.",
+    "compile.",
     "hydra.",
     "data.data_dir",
     "data.archive_dir",

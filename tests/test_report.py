@@ -208,6 +208,18 @@ def test_trainer_precision_makes_another_setting_not_a_seed():
     ]
 
 
+def test_progress_and_compile_settings_do_not_split_seeds():
+    """Settings a resume may change because they do not change what a run computes (src.lit.runs
+    FREE) are not another experiment: seeds differing in them are averaged together."""
+    runs = [{"config": _config(seed=s)} for s in (1, 2, 3)]
+    runs[1]["config"]["progress_every_s"] = 60
+    runs[2]["config"]["compile"] = {"enabled": False, "mode": "default"}
+    groups = group_runs(runs)
+    assert [(g.label, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
+        ("li2018_h36m", [1, 2, 3])
+    ]
+
+
 # --- the page from stored results ------------------------------------------------------------
 
 MS = [80, 160, 320, 400, 560, 1000]
