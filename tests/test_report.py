@@ -384,6 +384,26 @@ def test_target_verdict_at_the_printed_precision(delta, within):
     assert missed_targets([group], "srnn", {"h36m": 0.03}) == ([] if within else ["li2018_h36m"])
 
 
+@pytest.mark.parametrize("delta", [0.0333, 0.0368])
+def test_gap_line_agrees_with_the_tables_and_its_verdict(delta):
+    """The gap printed per horizon is the difference of the two printed averages (ours and the
+    published same-set one), the numbers the verdict judges: a horizon is named as missing the
+    target exactly when its printed gap exceeds it."""
+    (group,) = group_runs([offset_run(delta)])
+    (line,) = gap_lines(group, "best", "srnn", 0.03)
+    ours, published = (
+        row.split(" | ")[-6:]
+        for row in summary_table([group], [], "euler", "srnn").splitlines()[2:5:2]
+    )
+    gaps = dict(re.findall(r"(\d+) ms ([+-]\d\.\d\d)", line))
+    missed = re.findall(r"(\d+) ms", line.split("NOT within")[1]) if "NOT within" in line else []
+    for ms, gap in gaps.items():
+        column = MS.index(int(ms))
+        printed = float(ours[column].strip(" |")) - float(published[column].strip(" |"))
+        assert float(gap) == pytest.approx(printed, abs=1e-6), ms
+        assert (ms in missed) == (abs(float(gap)) > 0.03 + 1e-9), ms
+
+
 def test_target_paragraph_names_the_rows_that_miss_with_their_notes():
     groups = group_runs([offset_run(0.01), offset_run(0.08, "li2018_cmu", "cmu", absent={})])
     page = build_page(
