@@ -787,8 +787,20 @@ def target_paragraph(
         f"the target of the published same-set average at every published horizon ({goal} "
         f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints. "
     )
+    # Rows whose paper prints an average only (Li et al.'s Tables 5 and 6) have no same-set
+    # value, so missed_targets finds nothing to miss: they are not judged, not met.
+    unjudged = []
+    for group in checked:
+        table = seed_table(group, "best", protocol, "euler")
+        if table.published is not None and not table.published_same_set():
+            unjudged.append(group.label)
+    if unjudged:
+        text += (
+            "Not judged (their paper prints an average only, over all of its actions, so there "
+            f"is no same-set value): {', '.join(unjudged)}. "
+        )
     if not missed:
-        text += "Every trained row with published values meets it."
+        text += "Every trained row with a published same-set average meets it."
         return [text, ""]
     text += "Rows that miss it: " + "; ".join(
         f"{label} ({notes.get(label, 'no explanation given')})" for label in missed

@@ -426,6 +426,17 @@ def test_target_paragraph_names_the_rows_that_miss_with_their_notes():
     )
 
 
+def test_rows_with_a_printed_average_only_are_not_said_to_meet_the_target():
+    """Li et al.'s ablations (Tables 5 and 6) print an average only, so no same-set value to
+    judge them by: the verdict says they were not judged instead of counting them as met."""
+    groups = group_runs([offset_run(0.01), fake_run(1, 1.5, 1.5, "li2018_h36m_kernel_4x4")])
+    page = build_page(groups, [], ["srnn"], "cmd", None, "abc1234", {"h36m": 0.03})
+    (verdict,) = [line for line in page.splitlines() if "**Reproduction target.**" in line]
+    assert "Every trained row with published values meets it" not in verdict
+    assert "Not judged" in verdict and "li2018_h36m_kernel_4x4" in verdict
+    assert "Every trained row with a published same-set average meets it." in verdict
+
+
 def test_actions_without_training_files_are_named_and_left_out_of_a_second_gap():
     from src.data.layout import cmu_files
 
