@@ -302,9 +302,11 @@ def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> Non
     )
     for selection in SELECTIONS:
         if selection == "last" and same:
-            # The last checkpoint is the best one (its error was lowest at the end).
             run["results"]["last"] = run["results"]["best"]
-            run["notes"].append("best = last (lowest error at the final validation)")
+            # One file for both means one was missing (find_checkpoints noted which), not that
+            # the error was lowest at the end.
+            if checkpoints["last"] != checkpoints["best"]:
+                run["notes"].append("best = last (lowest error at the final validation)")
             continue
         run["results"][selection] = {}
         for protocol in protocols:

@@ -13,6 +13,7 @@ from src.report import (
     build_page,
     comparison_lines,
     discover_runs,
+    evaluate_run,
     find_checkpoint,
     find_checkpoints,
     gap_lines,
@@ -139,6 +140,31 @@ def test_unfinished_run_falls_back_and_says_so(tmp_path):
     assert checkpoints["best"] == checkpoints["last"] and any("best is last" in n for n in notes)
     with pytest.raises(SystemExit, match="no checkpoints"):
         find_checkpoints(make_run(tmp_path / "c", files=()))
+
+
+def test_a_run_without_a_best_checkpoint_is_not_said_to_have_its_lowest_error_at_the_end(
+    tmp_path, monkeypatch
+):
+    monkeypatch.setattr("src.report.evaluate", lambda overrides, out_dir: {"overrides": overrides})
+    run = make_run(tmp_path / "run", summary={"best_checkpoint": ""})
+    checkpoints, notes = find_checkpoints(run)
+    record = {
+        "path": str(run),
+        "config": {"run_name": "li2018_h36m"},
+        "seed": 1,
+        "checkpoints": checkpoints,
+        "iterations_of": {"best": 4000, "last": 4000},
+        "notes": notes,
+    }
+    evaluate_run(record, 0, ["srnn"], tmp_path / "work")
+    assert record["results"]["last"] is record["results"]["best"]
+    assert record["notes"] == ["no best checkpoint: best is last.ckpt"]
+    # A best checkpoint saved at the final validation is the last one, and the note says why.
+    best = run / "checkpoints" / "best-epoch003.ckpt"
+    best.touch()
+    record.update(checkpoints={**checkpoints, "best": best}, notes=[])
+    evaluate_run(record, 0, ["srnn"], tmp_path / "work")
+    assert record["notes"] == ["best = last (lowest error at the final validation)"]
 
 
 def test_discover_runs_in_a_multirun_and_plain_folders(tmp_path):
