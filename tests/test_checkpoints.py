@@ -57,6 +57,20 @@ def rising_error(monkeypatch):
     monkeypatch.setattr(MotionPredictor, "log_dict", rising)
 
 
+@pytest.fixture
+def falling_error(monkeypatch):
+    """Validation error that only gets better: 100 - iteration, so every validation is a new
+    best and Lightning removes the best file it replaces."""
+    original = MotionPredictor.log_dict
+
+    def falling(self, metrics, **kwargs):
+        if "val/euler_avg" in metrics:
+            metrics = {**metrics, "val/euler_avg": 100.0 - float(self.iteration)}
+        return original(self, metrics, **kwargs)
+
+    monkeypatch.setattr(MotionPredictor, "log_dict", falling)
+
+
 def _run(out, data_dir, *overrides):
     cfg = compose_config("train", [*TINY, *overrides], out, data_dir)
     score = train(cfg)
@@ -204,6 +218,31 @@ def test_best_survives_a_resume(rising_error, tmp_path, synthetic_data_dir):
     assert summary["best_checkpoint"] == str(best_first) and score == 2.0
     assert sorted(p.name for p in (first / "checkpoints").iterdir()) == before
     assert int(_load(second / "checkpoints" / LAST)["state_dict"]["iteration"]) == 8
+
+
+def test_a_better_best_after_a_resume_deletes_nothing_of_the_earlier_folder(
+    falling_error, tmp_path, synthetic_data_dir
+):
+    """The hard case of the rule above: the resumed run improves on the best before the kill.
+    Lightning then removes the best file it replaces, which lies in the earlier folder."""
+    first = tmp_path / "first"
+    _run(first, synthetic_data_dir, "iterations=4", "val_every=2")
+    before = {p.name: p.read_bytes() for p in (first / "checkpoints").iterdir()}
+    assert "best-epoch001.ckpt" in before
+
+    second = tmp_path / "second"
+    score, summary = _run(
+        second,
+        synthetic_data_dir,
+        "iterations=8",
+        "val_every=2",
+        f"ckpt_path={first / 'checkpoints' / LAST}",
+    )
+    # Within its own folder the new best replaces its predecessor as usual.
+    (best,) = (second / "checkpoints").glob("best-*.ckpt")
+    assert best.name == "best-epoch003.ckpt" and score == 92.0
+    assert summary["best_checkpoint"] == str(best)
+    assert {p.name: p.read_bytes() for p in (first / "checkpoints").iterdir()} == before
 
 
 def test_resuming_from_a_lean_best_checkpoint_is_refused(tmp_path, synthetic_data_dir):
