@@ -3,6 +3,9 @@ are atomic, the best checkpoint is lean and stays the best of the whole run acro
 
 from __future__ import annotations
 
+import os
+import signal
+
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -255,6 +258,24 @@ def test_resuming_from_a_lean_best_checkpoint_is_refused(tmp_path, synthetic_dat
     )  # fmt: skip
     with pytest.raises(CheckpointError, match="weights only"):
         train(cfg)
+
+
+def test_a_second_signal_aborts_at_once(tmp_path):
+    """The first SIGINT/SIGTERM only asks for a save after the iteration in progress; a second
+    one means it: KeyboardInterrupt at once, with the handler from before the run back."""
+    before = signal.getsignal(signal.SIGTERM)
+    last = LastCheckpoint(tmp_path)
+    last.on_train_start(None, None)
+    try:
+        assert signal.getsignal(signal.SIGTERM) == last._on_signal  # or SIGTERM ends pytest
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert last._signal == signal.SIGTERM
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGTERM)
+        assert signal.getsignal(signal.SIGTERM) is before
+    finally:
+        last.teardown(None, None, "fit")
+    assert signal.getsignal(signal.SIGTERM) is before
 
 
 def test_cuda_random_state_is_saved_and_restored(train_cfg):

@@ -187,6 +187,54 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     assert end_b["loops"]["fit_loop"]["epoch_progress"]["current"]["processed"] == 3
 
 
+SIGTERM_DURING_ITERATION_3 = """
+# Test hook loaded through PYTHONPATH: SIGTERM (a cluster's pre-emption) arrives while the
+# third iteration runs, always at the same point.
+import os
+import signal
+
+from src.lit.predictor import MotionPredictor
+
+_step = MotionPredictor.training_step
+
+
+def _step_with_sigterm(self, batch, batch_idx):
+    if int(self.iteration) == 2:
+        os.kill(os.getpid(), signal.SIGTERM)
+    return _step(self, batch, batch_idx)
+
+
+MotionPredictor.training_step = _step_with_sigterm
+"""
+
+
+def test_sigterm_between_validations_saves_and_exits_143(tmp_path, synthetic_data_dir):
+    """SIGTERM takes the Ctrl-C path, not Lightning's own SIGTERM handling: the iteration in
+    progress finishes, last.ckpt holds it, the resume command is printed, exit status 143."""
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(SIGTERM_DURING_ITERATION_3)
+    env = {**_env(synthetic_data_dir), "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+    log_dir = tmp_path / "logs"
+    proc = subprocess.run(
+        _train_cmd(log_dir, "checkpoint_every=0"),  # TINY: 6 iterations, validation every 2
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 128 + signal.SIGTERM, out[-3000:]
+    assert "Traceback" not in out, out[-3000:]
+    (run,) = _run_folders(log_dir)
+    last = run / "checkpoints" / "last.ckpt"
+    assert f"SIGTERM received: stopped after iteration 3 and wrote {last}" in out, out[-3000:]
+    assert f"ckpt_path={last}" in out
+    assert int(torch.load(last, weights_only=True)["state_dict"]["iteration"]) == 3
+    assert not (run / "summary.yaml").exists()
+
+
 @pytest.mark.slow
 def test_ctrl_c_between_validations_saves_and_resumes_exactly(tmp_path, synthetic_data_dir):
     """SIGINT mid-epoch: the iteration in progress finishes, last.ckpt is written and named,
