@@ -54,21 +54,6 @@ class TrainingInterrupted(RuntimeError):
 
 
 # ---------------------------------------------------------------------------- writing
-def atomic_save(obj: Any, path: Path) -> None:
-    """torch.save to a temporary file beside `path`, then rename: readers and a later resume
-    see the old file or the new one, never a half-written one."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def slim(ckpt: dict) -> dict:
     """What evaluation and inference need: no optimiser, scheduler, loop or callback state."""
     return {k: v for k, v in ckpt.items() if k not in RESUME_KEYS}
