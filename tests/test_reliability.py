@@ -116,20 +116,27 @@ def _poison_weights_after(iteration: int):
 
 
 @pytest.mark.parametrize(
-    ("poison", "message"),
+    ("poison", "message", "overrides"),
     [
-        (_poison_data_at(3), r"non-finite loss at training iteration 3: \{'loss_d': nan\}"),
-        (_poison_weights_after(4), r"non-finite weights after training iteration 4"),
+        (_poison_data_at(3), r"non-finite loss at training iteration 3: \{'loss_d': nan\}", []),
+        (_poison_weights_after(4), r"non-finite weights after training iteration 4", []),
+        # Between validations: only the check before each checkpoint stands between the NaN
+        # weights and the periodic save of iteration 3.
+        (
+            _poison_weights_after(3),
+            r"non-finite weights after training iteration 3",
+            ["checkpoint_every=1"],
+        ),
     ],
-    ids=["nan_loss", "nan_weights"],
+    ids=["nan_loss", "nan_weights", "nan_weights_before_a_periodic_checkpoint"],
 )
 def test_non_finite_training_stops_and_keeps_last_good_checkpoint(
-    poison, message, monkeypatch, h36m_dir, tmp_path
+    poison, message, overrides, monkeypatch, h36m_dir, tmp_path
 ):
     monkeypatch.setattr(MotionPredictor, "training_step", poison)
     out = tmp_path / "run"
     with pytest.raises(NonFiniteLossError, match=message) as err:
-        _train(out, h36m_dir, iterations=4, val_every=2)
+        _train(out, h36m_dir, *overrides, iterations=4, val_every=2)
     # The message carries the last finite losses so the user sees the trend before the blow-up.
     assert "Last finite losses" in str(err.value) and "train/loss_g" in str(err.value)
     # The message names the file to resume from (issue: it used to point at a folder).
