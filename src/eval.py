@@ -19,7 +19,6 @@ from pathlib import Path
 
 import hydra
 import lightning as L
-from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from src.lit.checkpoints import module_from_checkpoint, read_checkpoint
@@ -30,8 +29,8 @@ from src.lit.factory import (
     git_commit,
     register_resolvers,
 )
-from src.lit.runs import discard_unstarted_run
-from src.lit.validation import USER_ERRORS, hydra_entry, validate_eval_config
+from src.lit.runs import nothing_left_if_refused
+from src.lit.validation import hydra_entry, validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
 
@@ -152,13 +151,9 @@ def evaluate(cfg: DictConfig) -> dict:
 
 @hydra_entry("eval")
 def main(cfg: DictConfig) -> None:
-    try:
+    # Refused (a bad checkpoint, missing data): as with src.train, its folder goes.
+    with nothing_left_if_refused("results.json"):
         evaluate(cfg)
-    except USER_ERRORS:
-        # Refused (a bad checkpoint, missing data): as with src.train, its folder goes, so a
-        # refused evaluation leaves nothing behind beside the ones that wrote results.
-        discard_unstarted_run(HydraConfig.get().runtime.output_dir, started="results.json")
-        raise
 
 
 if __name__ == "__main__":

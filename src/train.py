@@ -46,8 +46,8 @@ from src.lit.factory import (
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
-from src.lit.runs import check_schedule, describe, discard_unstarted_run, restore_run
-from src.lit.validation import USER_ERRORS, hydra_entry, validate_train_config
+from src.lit.runs import check_schedule, describe, nothing_left_if_refused, restore_run
+from src.lit.validation import hydra_entry, validate_train_config
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
@@ -196,13 +196,10 @@ def _device_name(trainer: L.Trainer) -> str:
 
 
 def _train_or_discard(cfg: DictConfig) -> float:
-    try:
+    # Refused before training started: the folder claimed for it goes, so nothing of a
+    # refused run is left behind; a run that failed later (config.yaml written) keeps it.
+    with nothing_left_if_refused("config.yaml"):
         return train(cfg)
-    except USER_ERRORS:
-        # Refused before training started: the folder claimed for it goes, so nothing of a
-        # refused run is left behind; a run that failed later (config.yaml written) keeps it.
-        discard_unstarted_run(HydraConfig.get().runtime.output_dir)
-        raise
 
 
 @hydra_entry("train")

@@ -25,7 +25,6 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 import torch
-from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from src.data.base import MotionDataModule
@@ -33,8 +32,8 @@ from src.data.synthetic import SyntheticDataModule
 from src.eval import load_for_eval
 from src.lit.factory import ConfigError, register_resolvers
 from src.lit.predictor import MotionPredictor
-from src.lit.runs import discard_unstarted_run
-from src.lit.validation import USER_ERRORS, hydra_entry, validate_eval_config
+from src.lit.runs import nothing_left_if_refused
+from src.lit.validation import check_number_types, hydra_entry, validate_eval_config
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.models.baselines import ZeroVelocity
 from src.reporting.plots import PoseRow, animate, frame_strip
@@ -146,13 +145,11 @@ def _writer(fmt: str, fps: float):
 def _check_settings(cfg: DictConfig) -> None:
     """Hydra passes values as typed: a word would fail deep in the drawing with a traceback,
     int() would show window 1 for window=1.5, and any non-empty word would read as true."""
+    check_number_types(cfg, ("window", "observed_shown", "strip_step"), optional=False)
     # window's range depends on the action: select_window names it.
-    for key, least in (("window", None), ("observed_shown", 1), ("strip_step", 1)):
-        value = cfg[key]
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ConfigError(f"{key}={value!r} must be a whole number")
-        if least is not None and value < least:
-            raise ConfigError(f"{key}={value} must be >= {least}")
+    for key in ("observed_shown", "strip_step"):
+        if cfg[key] < 1:
+            raise ConfigError(f"{key}={cfg[key]} must be >= 1")
     if not isinstance(cfg.baseline, bool):
         raise ConfigError(f"baseline={cfg.baseline!r} must be true or false")
 
@@ -196,13 +193,9 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
 
 @hydra_entry("visualize")
 def main(cfg: DictConfig) -> None:
-    try:
+    # Refused before drawing (the pictures are written last): its folder goes.
+    with nothing_left_if_refused(started=None):
         visualize(cfg)
-    except USER_ERRORS:
-        # Refused before drawing (the pictures are written last): its folder goes, as a
-        # refused src.train or src.eval leaves nothing behind.
-        discard_unstarted_run(HydraConfig.get().runtime.output_dir, started=None)
-        raise
 
 
 if __name__ == "__main__":

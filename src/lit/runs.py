@@ -13,17 +13,20 @@ length (`iterations`), where files live, logging and the Trainer's settings may 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
 from src.lit.factory import ConfigError
+from src.lit.validation import USER_ERRORS
 
 # Where files live on this machine: always taken from this command, never from the resumed run.
 FROM_HERE = (
@@ -141,6 +144,17 @@ def discard_unstarted_run(folder: str | os.PathLike, started: str | None = "conf
             shutil.rmtree(path, ignore_errors=True)
         else:
             path.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def nothing_left_if_refused(started: str | None = "config.yaml"):
+    """Around an entry point's work: a user error raised inside removes the run folder Hydra
+    runs in (discard_unstarted_run, with `started`), then goes on to the one-line message."""
+    try:
+        yield
+    except USER_ERRORS:
+        discard_unstarted_run(HydraConfig.get().runtime.output_dir, started)
+        raise
 
 
 # ------------------------------------------------------------------------------ lengths

@@ -357,13 +357,20 @@ _NUMBERS = (
 )
 
 
-def _check_number_types(cfg: DictConfig) -> None:
-    for key in _WHOLE_NUMBERS + _NUMBERS:
+def check_number_types(
+    cfg: DictConfig,
+    whole_numbers: tuple[str, ...],
+    numbers: tuple[str, ...] = (),
+    optional: bool = True,
+) -> None:
+    """Each of these keys holds a whole number, or a number (ConfigError if not); with
+    `optional`, a key that is unset or null is let through."""
+    for key in whole_numbers + numbers:
         value = OmegaConf.select(cfg, key, default=None)
-        if value is None:
+        if value is None and optional:
             continue
         whole = isinstance(value, int) and not isinstance(value, bool)
-        if key in _WHOLE_NUMBERS:
+        if key in whole_numbers:
             _require(whole, f"{key}={value!r} must be a whole number.")
         else:
             _require(whole or isinstance(value, float), f"{key}={value!r} must be a number.")
@@ -373,7 +380,7 @@ def validate_train_config(cfg: DictConfig) -> None:
     """Out-of-range values are rejected here, naming the allowed range."""
     check_trainable(cfg)  # first: a baseline's config lacks what the checks below read
     check_constructor_keys(cfg)
-    _check_number_types(cfg)
+    check_number_types(cfg, _WHOLE_NUMBERS, _NUMBERS)
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
     seed = cfg.get("seed")
     if seed is not None:  # Lightning's seed_everything would raise numpy's range error
