@@ -73,7 +73,6 @@ class LastCheckpoint(Checkpoint):
         self.every = int(every)
         self._signal: int | None = None
         self._previous: dict[int, Any] = {}
-        self._saved_at = -1
 
     # Handlers are installed inside fit (after Lightning's own SIGTERM connector) and the
     # previous ones restored at teardown, so nothing outlives the run.
@@ -102,22 +101,20 @@ class LastCheckpoint(Checkpoint):
         )
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        iteration = int(pl_module.iteration)
-        if iteration == self._saved_at:
-            return
         tmp = self.path.with_name(f".{LAST}.partial")
         trainer.save_checkpoint(tmp)  # every rank takes part; only rank 0 writes
         if trainer.is_global_zero:
             os.replace(tmp, self.path)
         trainer.strategy.barrier("last_checkpoint")
-        self._saved_at = iteration
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         iteration = int(pl_module.iteration)
         if self._signal is not None:
             self.save(trainer, pl_module)
             raise TrainingInterrupted(self._signal, self.path, iteration)
-        if self.every and iteration % self.every == 0:
+        # Not at the epoch's last iteration: its validation comes next and the epoch's end
+        # saves after it; a save here would hold the state from before that validation.
+        if self.every and iteration % self.every == 0 and not trainer.is_last_batch:
             self.save(trainer, pl_module)
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
