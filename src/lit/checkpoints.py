@@ -107,11 +107,23 @@ class LastCheckpoint(Checkpoint):
             os.replace(tmp, self.path)
         trainer.strategy.barrier("last_checkpoint")
 
+    def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:
+        """The signal that stops training, the same on every rank. A signal may reach one
+        process only (`kill <pid>` of the command a user started), or the ranks at different
+        iterations: a rank that stopped to save alone would wait at the save's barrier while
+        the others trained on, a hang. One all-reduce per iteration, in distributed runs only."""
+        if trainer.world_size == 1:
+            return self._signal
+        signum = torch.tensor(self._signal or 0, device=pl_module.device)
+        torch.distributed.all_reduce(signum, op=torch.distributed.ReduceOp.MAX)
+        return int(signum) or None
+
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         iteration = int(pl_module.iteration)
-        if self._signal is not None:
+        signum = self._stop_signal(trainer, pl_module)
+        if signum is not None:
             self.save(trainer, pl_module)
-            raise TrainingInterrupted(self._signal, self.path, iteration)
+            raise TrainingInterrupted(signum, self.path, iteration)
         # Not at the epoch's last iteration: its validation comes next and the epoch's end
         # saves after it; a save here would hold the state from before that validation.
         if self.every and iteration % self.every == 0 and not trainer.is_last_batch:
