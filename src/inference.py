@@ -25,7 +25,6 @@ from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, read_checkpoint
-from src.models.conv_s2s import ConvSeq2Seq
 
 
 class InferenceInputError(ValueError):
@@ -228,8 +227,8 @@ class MotionForecaster:
     def export_torchscript(self, path: str | Path, future_len: int = 25) -> Path:
         """Trace the normalised-space net: (observed (B, 50, D), action (B,) long) -> (B, T, D).
 
-        Tracing records the decoding loop for this future_len (and, with the incremental
-        encoder, the fixed pattern of reused rows), so the file predicts exactly future_len."""
+        Tracing records the decoding loop for this future_len, so the file predicts exactly
+        future_len."""
         with torch.inference_mode(False), torch.no_grad():
             traced = torch.jit.trace(
                 _FixedHorizon(self.net, future_len).eval(), self._example(), check_trace=False
@@ -252,23 +251,13 @@ class MotionForecaster:
 
 
 class ForecastStream:
-    """Frame-by-frame forecasting over a ring buffer of the last observed_len frames.
-
-    With the incremental ConvSeq2Seq the conv rows of frames already seen are kept between
-    pushes (stable ids = stream positions), so a push only encodes what the new frame changed
-    plus the predicted frames; other networks re-run on the buffer.
-    """
+    """Frame-by-frame forecasting over a ring buffer of the last observed_len frames: each push
+    predicts from the buffer's window, as `predict` does."""
 
     def __init__(self, forecaster: MotionForecaster, action: str | None, future_len: int):
         self.fc, self.future_len = forecaster, _check_future_len(future_len)
         self.action = forecaster._action_ids(action, 1)
         self.buffer: deque[Tensor] = deque(maxlen=forecaster.observed_len)
-        self.position = -1  # stream index of the last pushed frame
-        net = forecaster.net
-        # A row cache changes every push, which no captured graph can replay: compiled
-        # forecasters recompute each window instead.
-        incremental = isinstance(net, ConvSeq2Seq) and net.incremental and not forecaster.compiled
-        self.cache = net.new_cache() if incremental else None
 
     @torch.inference_mode()
     def push(self, frame: np.ndarray) -> np.ndarray | None:
@@ -278,17 +267,8 @@ class ForecastStream:
         if x.shape != (F,):
             raise InferenceInputError(f"push takes one frame of shape ({F},), got {tuple(x.shape)}")
         self.buffer.append(self.fc.normalizer.normalize(x)[None])
-        self.position += 1
         if len(self.buffer) < self.fc.observed_len:
             return None
         window = torch.stack(list(self.buffer), dim=1)  # (1, observed_len, D)
-        net = self.fc.net
-        if self.cache is not None:
-            first = self.position - self.fc.observed_len + 1
-            pred = net.decode_incremental(window, self.future_len, cache=self.cache, first_id=first)
-            for cem in self.cache:
-                if cem is not None:
-                    cem.prune(first + 1)  # rows of the dropped frame and of predictions
-        else:
-            pred = self.fc._run(window, self.future_len, action=self.action)
+        pred = self.fc._run(window, self.future_len, action=self.action)
         return self.fc.normalizer.unnormalize(pred)[0].cpu().numpy()
