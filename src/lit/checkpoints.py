@@ -35,7 +35,6 @@ from src.data.normalization import Normalizer
 log = logging.getLogger(__name__)
 
 LAST = "last.ckpt"
-RESUME_KEYS = ("optimizer_states", "lr_schedulers", "loops", "callbacks")
 
 
 class CheckpointError(ValueError):
@@ -54,11 +53,6 @@ class TrainingInterrupted(RuntimeError):
 
 
 # ---------------------------------------------------------------------------- writing
-def slim(ckpt: dict) -> dict:
-    """What evaluation and inference need: no optimiser, scheduler, loop or callback state."""
-    return {k: v for k, v in ckpt.items() if k not in RESUME_KEYS}
-
-
 class LastCheckpoint(Checkpoint):
     """Writes the resumable `last.ckpt` at every validation, every `every` iterations (0: off)
     and, on SIGINT/SIGTERM, after the iteration in progress; then training stops with

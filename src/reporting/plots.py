@@ -63,15 +63,6 @@ def bone_sides(skeleton: Skeleton, bones: Sequence[tuple[int, int]]) -> np.ndarr
     return np.array([int(c in left) for _, c in bones], dtype=int)
 
 
-def rest_pose(skeleton: Skeleton) -> np.ndarray:
-    """Joint positions (J, 3) of the rest pose (every rotation zero), y up as the skeleton."""
-    offsets = skeleton.offsets.numpy()
-    out = np.zeros_like(offsets)
-    for j, p in enumerate(skeleton.parents):
-        out[j] = offsets[j] + (out[p] if p >= 0 else 0.0)
-    return out
-
-
 def _limits(motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) corners (3,) of one box holding every pose, so all panels share a scale."""
     pts = np.concatenate([m.reshape(-1, 3) for m in motions])
@@ -90,10 +81,6 @@ def _setup_axes(ax, box: tuple[np.ndarray, np.ndarray], elev: float, azim: float
     ax.set_proj_type("ortho")
     ax.view_init(elev=elev, azim=azim)
     ax.set_axis_off()
-
-
-def _colors(pair: tuple[str, str], sides: np.ndarray) -> list[str]:
-    return [pair[s] for s in sides]
 
 
 def _segments(pose: np.ndarray, bones: Sequence[tuple[int, int]]) -> np.ndarray:
