@@ -13,18 +13,16 @@ normalisation (protocol §2.1) and unnormalisation (§2.2) happen here, in raw F
 
 from __future__ import annotations
 
-import inspect
 import numbers
 from collections import deque
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
-from src.lit.checkpoints import CheckpointError, read_checkpoint
+from src.lit.factory import load_trained
 
 
 class InferenceInputError(ValueError):
@@ -56,44 +54,6 @@ def _device(device: str | torch.device) -> torch.device:
             "use device='cpu'"
         )
     return dev
-
-
-def _padding_of(config: dict) -> str:
-    """The conv padding that `padding: auto` resolved to (protocol §6.7: SAME H3.6M, VALID CMU)."""
-    target = config.get("data", {}).get("_target_")
-    if target is None:
-        raise CheckpointError("checkpoint config has no data._target_; cannot resolve padding")
-    return hydra.utils.get_class(target).conv_padding
-
-
-def build_net(ckpt: dict) -> tuple[nn.Module, Normalizer]:
-    """Rebuild (network, normaliser) from a checkpoint dict alone, weights loaded, eval mode."""
-    motion, state = ckpt["motion"], ckpt["state_dict"]
-    config = motion.get("config")
-    if not config or "model" not in config:
-        raise CheckpointError("checkpoint has no motion.config.model; it cannot be rebuilt")
-    if "normalizer.mean" not in state:
-        raise CheckpointError("checkpoint holds no normaliser (normalizer.* buffers)")
-    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
-    normalizer.load_state_dict(
-        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
-    )
-    node = dict(config["model"]["net"])
-    accepted = inspect.signature(hydra.utils.get_class(node["_target_"])).parameters
-    kwargs = {"pose_dim": normalizer.pose_dim, "num_actions": len(motion["actions"])}
-    if "normalizer" in accepted:
-        kwargs["normalizer"] = normalizer
-    if node.get("padding") == "auto":
-        node["padding"] = _padding_of(config)
-    net = hydra.utils.instantiate(node, **kwargs, _convert_="all")
-    weights = {k.removeprefix("net."): v for k, v in state.items() if k.startswith("net.")}
-    missing, unexpected = net.load_state_dict(weights, strict=False)
-    if missing or unexpected:
-        raise CheckpointError(
-            f"checkpoint weights do not fit the rebuilt network: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}"
-        )
-    return net.eval(), normalizer.eval()
 
 
 class _FixedHorizon(nn.Module):
@@ -149,10 +109,9 @@ class MotionForecaster:
     def from_checkpoint(
         cls, path: str | Path, device: str = "cpu", compile: bool | str = "auto"
     ) -> MotionForecaster:
-        ckpt = read_checkpoint(path)
-        net, normalizer = build_net(ckpt)
-        observed_len = getattr(net, "observed_len", 50)
-        return cls(net, normalizer, ckpt["motion"]["actions"], observed_len, device, compile)
+        module = load_trained(path)
+        observed_len = module.run_info["config"]["data"]["observed_len"]
+        return cls(module.net, module.normalizer, module.actions, observed_len, device, compile)
 
     # ------------------------------------------------------------------ checks
     def _action_ids(self, action: str | None, batch: int) -> Tensor:

@@ -17,7 +17,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.eval import load_for_eval
+from src.lit.factory import build_for_evaluation
 from tests.conftest import ROOT, compose_config, run_module
 
 TINY_DDP = [
@@ -64,7 +64,7 @@ def test_ddp_two_cpu_processes_match_single_process_evaluation(tmp_path, synthet
         tmp_path / "eval",
         synthetic_data_dir,
     )
-    dm, module, _, _ = load_for_eval(cfg)
+    dm, module = build_for_evaluation(cfg)
     trainer = L.Trainer(accelerator="cpu", devices=1, logger=False, enable_progress_bar=False)
     trainer.validate(module, datamodule=dm, verbose=False)
     for tag, value in logged.items():

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 import torch
 
+from src.data.normalization import Normalizer
 from src.data.synthetic import write_synthetic_h36m
-from src.inference import InferenceInputError, MotionForecaster, build_net
+from src.inference import InferenceInputError, MotionForecaster
 from src.lit.checkpoints import CheckpointError, read_checkpoint
 from src.lit.compose import compose_config
+from src.models.conv_s2s import ConvSeq2Seq
 from src.train import train
 
 F = 99  # H3.6M raw columns
@@ -55,8 +57,12 @@ def frames():
 
 
 def reference_prediction(ckpt_path, x: np.ndarray, future_len: int) -> np.ndarray:
-    """By hand from the checkpoint: normalise (§2.1), recompute every window, unnormalise."""
-    net, norm = build_net(read_checkpoint(ckpt_path))
+    """By hand from the checkpoint: the network of the fixture's config with the saved weights,
+    normalise (§2.1), predict, unnormalise."""
+    state = read_checkpoint(ckpt_path)["state_dict"]
+    norm = Normalizer(state["normalizer.mean"], state["normalizer.std"], state["normalizer.used"])
+    net = ConvSeq2Seq(norm.pose_dim, 3, nf=4, d_z=32, d_dec=32, padding="same").eval()
+    net.load_state_dict({k.removeprefix("net."): v for k, v in state.items() if k[:4] == "net."})
     with torch.no_grad():
         pred = net(norm.normalize(torch.as_tensor(x)), future_len)
         return norm.unnormalize(pred).numpy()
