@@ -108,6 +108,17 @@ def test_bad_inputs_raise_clear_errors(forecaster, frames):
         MotionForecaster.from_checkpoint("/nonexistent/last.ckpt")
 
 
+def test_a_checkpoint_whose_config_this_version_cannot_build_is_refused(ckpt_path, tmp_path):
+    """A network setting this version no longer has (4b904c1 took model.net.incremental): one
+    CheckpointError naming the file, not Hydra's instantiation traceback."""
+    ckpt = torch.load(ckpt_path, map_location="cpu", weights_only=True)
+    ckpt["motion"]["config"]["model"]["net"]["incremental"] = False
+    old = tmp_path / "old.ckpt"
+    torch.save(ckpt, old)
+    with pytest.raises(CheckpointError, match=f"cannot rebuild the model of {old}.*incremental"):
+        MotionForecaster.from_checkpoint(old)
+
+
 def test_a_device_that_cannot_be_used_is_refused_by_name(ckpt_path, monkeypatch):
     with pytest.raises(InferenceInputError, match="device='gpu' is not a torch device"):
         MotionForecaster.from_checkpoint(ckpt_path, device="gpu")
