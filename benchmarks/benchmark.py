@@ -34,31 +34,18 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
-from torch.utils.flop_counter import FlopCounterMode, conv_flop_count  # noqa: E402
+from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
 from benchmarks.data_loading import machine_info  # noqa: E402
 from src.data.normalization import Normalizer  # noqa: E402
 from src.inference import compile_for_prediction  # noqa: E402
 from src.lit.predictor import MotionPredictor  # noqa: E402
-from src.models.conv_encoder import IncrementalCEM  # noqa: E402
 from src.models.conv_s2s import ConvSeq2Seq  # noqa: E402
 from src.models.discriminator import Discriminator  # noqa: E402
 from src.models.gru_s2s import GRUSeq2Seq  # noqa: E402
 
 F_RAW, D, A, OBS, FUT = 99, 54, 15, 50, 25
 VAL_WINDOWS = 8 * A  # protocol: 8 test windows per action
-
-
-def flop_counter() -> FlopCounterMode:
-    """FlopCounterMode that also counts oneDNN's packed convolution (ConvEncoder.conv_act),
-    which it does not know: the same FLOPs as the convolution it replaces."""
-
-    def packed_conv(x_shape, w_shape, *args, out_shape=None, **kwargs) -> int:
-        return conv_flop_count(x_shape, w_shape, out_shape)
-
-    packed = getattr(torch.ops.mkldnn, "_convolution_pointwise", None)
-    mapping = {packed: packed_conv} if packed is not None else {}
-    return FlopCounterMode(display=False, custom_mapping=mapping)
 
 
 def sync(device: torch.device) -> None:
@@ -91,9 +78,7 @@ def module(kind: str, device: torch.device) -> MotionPredictor:
     normalizer = Normalizer(torch.zeros(F_RAW), torch.ones(F_RAW), torch.arange(F_RAW) < D)
     disc = None
     if kind.startswith("conv"):
-        net = conv_net(
-            incremental=kind != "conv_recompute", share_dropout_masks=kind == "conv_shared_masks"
-        )
+        net = conv_net()
         opt, lambda_2, clip = partial(torch.optim.Adam, lr=5e-5, fused=True), 1e-3, None
         if kind == "conv_adv":
             disc = Discriminator(D, A, seq_len=OBS + FUT)
@@ -148,9 +133,7 @@ def batch(B: int, device, adversarial: bool) -> dict:
 
 TRAIN_KINDS = {
     "conv_adv": "conv_s2s + adversarial (default config)",
-    "conv": "conv_s2s, no adversarial (default: exact, recomputes under dropout)",
-    "conv_recompute": "conv_s2s, no adversarial, incremental=false",
-    "conv_shared_masks": "conv_s2s, no adversarial, incremental + share_dropout_masks",
+    "conv": "conv_s2s, no adversarial",
     "gru": "gru_s2s (Martinez residual sup.)",
 }
 
@@ -167,7 +150,7 @@ def bench_training(device, batches, repeats) -> tuple[dict, dict, dict]:
         for k, m in mods.items():
             # The FLOPs of one iteration, counted on the eager step (every op visible) ...
             m.compile_step, m._compiled = False, None
-            with flop_counter() as fc:
+            with FlopCounterMode(display=False) as fc:
                 m.training_step(data[k], 0)
             flops[f"{k}@{B}"] = fc.get_total_flops()
             # ... then as src.train runs it (compile.enabled=auto: compiled on CUDA), warmed
@@ -223,52 +206,30 @@ def bench_compiled_prediction(device, repeats: int) -> dict:
 
 
 def bench_inference(device, repeats, big: int) -> dict:
+    """Prediction of 25 frames from 50 (every short-term window encoded anew, eq. 4): latency
+    at batch 1, throughput at batch `big`, FLOPs and the FLOP rate at batch 1."""
     net = conv_net().to(device).eval()
-    # Both paths called directly: forward() itself reuses rows on the CPU only.
-    paths = {True: net.decode_incremental, False: partial(ConvSeq2Seq.forward, net)}
-    net.incremental = False  # forward() recomputes on every device
     x1 = torch.randn(1, OBS, D, device=device)
     xb = torch.randn(big, OBS, D, device=device)
-    res: dict[str, list[float]] = {}
     with torch.inference_mode():
-        for inc in (True, False):
-            paths[inc](x1, FUT)  # warm-up
-        for _ in range(repeats):
-            for inc in (True, False):
-                res.setdefault(f"latency_{'inc' if inc else 'recompute'}", []).extend(
-                    timed(partial(paths[inc], x1, FUT), device, 1)
-                )
-        for inc in (True, False):
-            res[f"big_{'inc' if inc else 'recompute'}"] = timed(
-                partial(paths[inc], xb, FUT), device, max(2, repeats // 10)
-            )
-        outs = [paths[inc](xb[:16], FUT) for inc in (True, False)]
-        max_diff = (outs[0] - outs[1]).abs().max().item()
-        cem = IncrementalCEM(net.short_encoder)
-        net.decode_incremental(x1, FUT, cache=(None, cem))
-        rows = [len(r) for r in cem.rows[1:]]
-        flop = {}
-        for inc in (True, False):
-            with flop_counter() as fc:
-                paths[inc](x1, FUT)
-            flop[inc] = fc.get_total_flops()
-    out = {}
-    for key in ("inc", "recompute"):
-        lat = res[f"latency_{key}"]
-        out[f"latency_ms_median_{key}"] = 1e3 * statistics.median(lat)
-        out[f"latency_ms_p90_{key}"] = 1e3 * p90(lat)
-        out[f"throughput_seq_s_{key}"] = big / statistics.median(res[f"big_{key}"])
-        out[f"flops_per_prediction_{key}"] = flop[key == "inc"]
-        out[f"gflops_achieved_b1_{key}"] = flop[key == "inc"] / statistics.median(lat) / 1e9
-    out["throughput_batch"] = big
-    out["max_abs_diff"] = max_diff
-    out["short_rows_computed"] = rows
-    out["short_rows_recompute"] = [FUT * s[1] for s in net.short_encoder.shapes]
-    return out
+        net(x1, FUT)  # warm-up
+        lat = timed(partial(net, x1, FUT), device, repeats)
+        big_s = statistics.median(timed(partial(net, xb, FUT), device, max(2, repeats // 10)))
+        with FlopCounterMode(display=False) as fc:
+            net(x1, FUT)
+    flops = fc.get_total_flops()
+    return {
+        "latency_ms_median": 1e3 * statistics.median(lat),
+        "latency_ms_p90": 1e3 * p90(lat),
+        "throughput_seq_s": big / big_s,
+        "throughput_batch": big,
+        "flops_per_prediction": flops,
+        "gflops_achieved_b1": flops / statistics.median(lat) / 1e9,
+    }
 
 
-# Operators that do a step's arithmetic: convolutions (forward, backward, oneDNN's packed one)
-# and matrix products. Everything else (dropout draws, padding copies, element-wise ops, the
+# Operators that do a step's arithmetic: convolutions (forward and backward) and matrix
+# products. Everything else (dropout draws, padding copies, element-wise ops, the
 # optimiser, Python) is what an implementation could still remove.
 ARITHMETIC = re.compile(r"conv|(^|::)(add)?b?mm$")
 
@@ -403,9 +364,7 @@ def issue_targets(
             )
     elif on_gpu:
         cpu_ratio = absent
-    lat = f"{inference['latency_ms_median_recompute']:.1f} ms {here} (recompute), " + (
-        f"{inference['latency_ms_median_inc']:.1f} ms (incremental)"
-    )
+    lat = f"{inference['latency_ms_median']:.1f} ms {here}"
     if pred:
         lat += f", {pred['compiled_ms']:.1f} ms (compiled)"
     return [
@@ -449,17 +408,14 @@ def markdown(r: dict) -> str:
         )
         + " |"
     )
-    for key, label in (("inc", "incremental"), ("recompute", "recompute")):
-        lines += [
-            f"| latency batch 1, 50->25, {label}: median ms | "
-            f"{inf[f'latency_ms_median_{key}']:.1f} |",
-            f"| latency batch 1, {label}: p90 ms | {inf[f'latency_ms_p90_{key}']:.1f} |",
-            f"| throughput batch {inf['throughput_batch']}, {label}: sequences/s | "
-            f"{inf[f'throughput_seq_s_{key}']:.0f} |",
-            f"| FLOPs per prediction, {label} (GFLOP) | "
-            f"{inf[f'flops_per_prediction_{key}'] / 1e9:.3f} |",
-            f"| achieved GFLOP/s at batch 1, {label} | {inf[f'gflops_achieved_b1_{key}']:.2f} |",
-        ]
+    lines += [
+        f"| latency batch 1, 50->25: median ms | {inf['latency_ms_median']:.1f} |",
+        f"| latency batch 1: p90 ms | {inf['latency_ms_p90']:.1f} |",
+        f"| throughput batch {inf['throughput_batch']}: sequences/s | "
+        f"{inf['throughput_seq_s']:.0f} |",
+        f"| FLOPs per prediction (GFLOP) | {inf['flops_per_prediction'] / 1e9:.3f} |",
+        f"| achieved GFLOP/s at batch 1 | {inf['gflops_achieved_b1']:.2f} |",
+    ]
     pred = r.get("compiled_prediction") or {}
     if pred:
         lines += [
@@ -469,11 +425,7 @@ def markdown(r: dict) -> str:
             f"| compiled prediction: first 3 calls (compiling) s, max abs diff from eager | "
             f"{pred['warm_up_s']:.0f}, {pred['max_diff']:.1e} |",
         ]
-    lines.append(
-        "| short-term conv rows computed per prediction, conv1/2/3: incremental vs recompute | "
-        f"{inf['short_rows_computed']} vs {inf['short_rows_recompute']} |"
-    )
-    for k in ("conv_adv", "conv_shared_masks", "gru"):
+    for k in ("conv_adv", "conv", "gru"):
         B = r["batches"][0]
         g = r["train_flops"][f"{k}@{B}"] * t[f"{k}@{B}"] / 1e9
         lines.append(f"| achieved GFLOP/s training {k}, batch {B} | {g:.2f} |")
@@ -546,30 +498,13 @@ NOTES = [
     "",
     "- Times are medians of interleaved repeats (A/B variants alternate, so background load",
     "  hits both alike); on a shared, loaded machine absolute values are noisy, ratios less so.",
-    "- Default exact mode: in training the CEM dropout (0.2/0.2/0.5) draws a fresh mask per",
-    "  window when recomputing; kept rows cannot reproduce that, so training falls back to",
-    "  recomputation and runs at the recompute speed. `share_dropout_masks=true` runs the",
-    "  incremental encoder in training too (kept rows keep their masks: a correlated-mask",
-    "  variant of the reference regulariser), which is the row compared for the 2x target.",
-    "- What bounds the speed-up: see the conv-rows line. conv1 rows are cheap, conv2/conv3",
-    "  rows dear, and the bottom conv3 row sees padding in every window so it is recomputed",
-    "  each step; the short-term FC (per window), the long-term",
-    "  encoder, decoder and (adversarial) the discriminator are not incremental, so the counted",
-    "  FLOPs of a prediction fall by well under 2x and a training iteration by less.",
+    "- Prediction encodes each of the 25 short-term windows anew (eq. 4), as training does.",
     "- The bound rows: the profiler's self time of the step's convolutions and matrix products",
     "  (at this run's speed of those kernels) as a share of the step, and the speed the step",
     "  would reach if nothing else took time. A speed-up over the reference commit beyond it",
     "  needs fewer FLOPs or faster kernels, not less overhead; what separates the step from it",
     "  is mostly the dropout draws (a fresh mask per window, as in the reference), the padding",
     "  copies and element-wise work (the share rows above).",
-    "- `forward()` reuses short-term rows (incremental) on the CPU only: on an H100 at commit",
-    "  58436ca it was slower than recomputing at batch 1 and 256. The latency and throughput",
-    "  rows call both paths directly, so they compare them on any device.",
-    "- Without autograd on the CPU (prediction, validation, the discriminator step's generator",
-    "  pass) convolutions 2-3 run on oneDNN weights packed once (ConvEncoder.conv_act): at",
-    "  batch 1 PyTorch would pick its slow im2col path or repack the weights at every call.",
-    "  What is left at batch 1 is mostly the convolutions and reading the fully connected",
-    "  layers' weights once per decoding step (matrix-vector products bound by memory).",
     "- The training step's optimisers are fused Adam, and the L2 terms of eq. (9) and of the",
     "  discriminator are added to the gradients in closed form (src/lit/predictor.py).",
     "- `compile.enabled=auto` compiles the training step's two objectives on CUDA only (mode",
@@ -612,9 +547,7 @@ def main(argv: list[str] | None = None) -> dict:
     B0 = batches[0]
     train_its = {k: 1.0 / v for k, v in train.items()}
     val_frac = val_s / (args.val_every / train_its[f"conv_adv@{B0}"])
-    speedup = train_its[f"conv_shared_masks@{B0}"] / train_its[f"conv_recompute@{B0}"]
-    default_speedup = train_its[f"conv@{B0}"] / train_its[f"conv_recompute@{B0}"]
-    lat = inference["latency_ms_median_inc"]
+    lat = inference["latency_ms_median"]
     # Compiling takes a minute on the CPU: not in the CI smoke run.
     pred = {} if smoke else bench_compiled_prediction(device, 30)
     profile, arithmetic = bench_profile(device, B0, 1 if smoke else 5)
@@ -647,19 +580,7 @@ def main(argv: list[str] | None = None) -> dict:
         "arithmetic_bound": bound,
         "issue_targets": issue_targets(device, cli, inference, pred, bound),
         "targets": {
-            "latency batch 1 <= 10 ms (incremental, median)": (f"{lat:.1f} ms", lat <= 10),
-            f"train iteration batch {B0} >= 2x recompute (shared dropout masks)": (
-                f"{speedup:.2f}x",
-                speedup >= 2,
-            ),
-            f"train iteration batch {B0} >= 2x recompute (default exact mode)": (
-                f"{default_speedup:.2f}x",
-                default_speedup >= 2,
-            ),
-            "same outputs (tests/test_incremental.py, max abs diff here)": (
-                f"{inference['max_abs_diff']:.1e}",
-                inference["max_abs_diff"] <= 1e-5,
-            ),
+            "latency batch 1 <= 10 ms (median)": (f"{lat:.1f} ms", lat <= 10),
         },
     }
     table = markdown(r)
@@ -688,10 +609,9 @@ def headline(r: dict) -> str:
             f"- training, batch {B0}: {its[f'conv_adv@{B0}']:.2f} it/s for conv_s2s with the "
             f"adversarial regulariser, {its[f'gru@{B0}']:.2f} it/s for gru_s2s;",
             f"- prediction of 25 frames from 50 at batch 1: "
-            f"{inf['latency_ms_median_inc']:.1f} ms median (incremental encoder), "
-            f"{inf['latency_ms_median_recompute']:.1f} ms recomputing;",
+            f"{inf['latency_ms_median']:.1f} ms median;",
             f"- throughput at batch {inf['throughput_batch']}: "
-            f"{inf['throughput_seq_s_inc']:.0f} sequences/s;",
+            f"{inf['throughput_seq_s']:.0f} sequences/s;",
             f"- matmul rate of the same machine: {r['matmul_gflops']:.0f} GFLOP/s.",
         ]
     )

@@ -21,14 +21,7 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
-from src.lit.checkpoints import module_from_checkpoint, read_checkpoint
-from src.lit.factory import (
-    ConfigError,
-    build_datamodule,
-    build_module,
-    git_commit,
-    register_resolvers,
-)
+from src.lit.factory import build_for_evaluation, git_commit, register_resolvers
 from src.lit.runs import nothing_left_if_refused
 from src.lit.validation import hydra_entry, validate_eval_config
 from src.reporting.published import published_for
@@ -36,34 +29,6 @@ from src.reporting.tables import ResultTable, results_from_metric
 
 log = logging.getLogger(__name__)
 register_resolvers()
-
-
-def load_for_eval(cfg: DictConfig):
-    """(datamodule, module, description) for a checkpoint or a baseline config."""
-    if cfg.ckpt_path:
-        ckpt = read_checkpoint(cfg.ckpt_path)
-        dm, module = module_from_checkpoint(ckpt, cfg, cfg.ckpt_path)
-        saved = ckpt["motion"]["config"]
-        return dm, module, saved["model"], saved["data"]["name"]
-    if cfg.get("model") is None or cfg.get("data") is None:
-        raise ConfigError(
-            "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
-            "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
-        )
-    data_cfg = cfg.data.copy()
-    if cfg.get("protocol"):
-        data_cfg.eval_protocol = cfg.protocol
-    dm = build_datamodule(data_cfg)
-    dm.prepare_data()
-    dm.setup("validate")
-    module = build_module(cfg, dm, run_info={"commit": git_commit()})
-    if module.trainable:
-        raise ConfigError(
-            f"model={cfg.model.name} is a trainable network and no ckpt_path was given; the "
-            "numbers of an untrained network mean nothing. Train it with `python -m src.train "
-            f"model={cfg.model.name} ...` and pass ckpt_path=<its checkpoint>."
-        )
-    return dm, module, OmegaConf.to_container(cfg.model, resolve=True), cfg.data.name
 
 
 def training_run_name(ckpt_path: str | Path) -> str:
@@ -117,7 +82,9 @@ def evaluate(cfg: DictConfig) -> dict:
     validate_eval_config(cfg)
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
-    dm, module, model_cfg, dataset = load_for_eval(cfg)
+    dm, module = build_for_evaluation(cfg)
+    model_cfg = module.run_info["config"]["model"]
+    dataset = module.run_info["config"]["data"]["name"]
     trainer: L.Trainer = hydra.utils.instantiate(
         cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
     )

@@ -13,19 +13,16 @@ normalisation (protocol §2.1) and unnormalisation (§2.2) happen here, in raw F
 
 from __future__ import annotations
 
-import inspect
 import numbers
 from collections import deque
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
 from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
-from src.lit.checkpoints import CheckpointError, read_checkpoint
-from src.models.conv_s2s import ConvSeq2Seq
+from src.lit.factory import load_trained
 
 
 class InferenceInputError(ValueError):
@@ -57,44 +54,6 @@ def _device(device: str | torch.device) -> torch.device:
             "use device='cpu'"
         )
     return dev
-
-
-def _padding_of(config: dict) -> str:
-    """The conv padding that `padding: auto` resolved to (protocol §6.7: SAME H3.6M, VALID CMU)."""
-    target = config.get("data", {}).get("_target_")
-    if target is None:
-        raise CheckpointError("checkpoint config has no data._target_; cannot resolve padding")
-    return hydra.utils.get_class(target).conv_padding
-
-
-def build_net(ckpt: dict) -> tuple[nn.Module, Normalizer]:
-    """Rebuild (network, normaliser) from a checkpoint dict alone, weights loaded, eval mode."""
-    motion, state = ckpt["motion"], ckpt["state_dict"]
-    config = motion.get("config")
-    if not config or "model" not in config:
-        raise CheckpointError("checkpoint has no motion.config.model; it cannot be rebuilt")
-    if "normalizer.mean" not in state:
-        raise CheckpointError("checkpoint holds no normaliser (normalizer.* buffers)")
-    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
-    normalizer.load_state_dict(
-        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
-    )
-    node = dict(config["model"]["net"])
-    accepted = inspect.signature(hydra.utils.get_class(node["_target_"])).parameters
-    kwargs = {"pose_dim": normalizer.pose_dim, "num_actions": len(motion["actions"])}
-    if "normalizer" in accepted:
-        kwargs["normalizer"] = normalizer
-    if node.get("padding") == "auto":
-        node["padding"] = _padding_of(config)
-    net = hydra.utils.instantiate(node, **kwargs, _convert_="all")
-    weights = {k.removeprefix("net."): v for k, v in state.items() if k.startswith("net.")}
-    missing, unexpected = net.load_state_dict(weights, strict=False)
-    if missing or unexpected:
-        raise CheckpointError(
-            f"checkpoint weights do not fit the rebuilt network: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}"
-        )
-    return net.eval(), normalizer.eval()
 
 
 class _FixedHorizon(nn.Module):
@@ -150,10 +109,9 @@ class MotionForecaster:
     def from_checkpoint(
         cls, path: str | Path, device: str = "cpu", compile: bool | str = "auto"
     ) -> MotionForecaster:
-        ckpt = read_checkpoint(path)
-        net, normalizer = build_net(ckpt)
-        observed_len = getattr(net, "observed_len", 50)
-        return cls(net, normalizer, ckpt["motion"]["actions"], observed_len, device, compile)
+        module = load_trained(path)
+        observed_len = module.run_info["config"]["data"]["observed_len"]
+        return cls(module.net, module.normalizer, module.actions, observed_len, device, compile)
 
     # ------------------------------------------------------------------ checks
     def _action_ids(self, action: str | None, batch: int) -> Tensor:
@@ -228,8 +186,8 @@ class MotionForecaster:
     def export_torchscript(self, path: str | Path, future_len: int = 25) -> Path:
         """Trace the normalised-space net: (observed (B, 50, D), action (B,) long) -> (B, T, D).
 
-        Tracing records the decoding loop for this future_len (and, with the incremental
-        encoder, the fixed pattern of reused rows), so the file predicts exactly future_len."""
+        Tracing records the decoding loop for this future_len, so the file predicts exactly
+        future_len."""
         with torch.inference_mode(False), torch.no_grad():
             traced = torch.jit.trace(
                 _FixedHorizon(self.net, future_len).eval(), self._example(), check_trace=False
@@ -252,23 +210,13 @@ class MotionForecaster:
 
 
 class ForecastStream:
-    """Frame-by-frame forecasting over a ring buffer of the last observed_len frames.
-
-    With the incremental ConvSeq2Seq the conv rows of frames already seen are kept between
-    pushes (stable ids = stream positions), so a push only encodes what the new frame changed
-    plus the predicted frames; other networks re-run on the buffer.
-    """
+    """Frame-by-frame forecasting over a ring buffer of the last observed_len frames: each push
+    predicts from the buffer's window, as `predict` does."""
 
     def __init__(self, forecaster: MotionForecaster, action: str | None, future_len: int):
         self.fc, self.future_len = forecaster, _check_future_len(future_len)
         self.action = forecaster._action_ids(action, 1)
         self.buffer: deque[Tensor] = deque(maxlen=forecaster.observed_len)
-        self.position = -1  # stream index of the last pushed frame
-        net = forecaster.net
-        # A row cache changes every push, which no captured graph can replay: compiled
-        # forecasters recompute each window instead.
-        incremental = isinstance(net, ConvSeq2Seq) and net.incremental and not forecaster.compiled
-        self.cache = net.new_cache() if incremental else None
 
     @torch.inference_mode()
     def push(self, frame: np.ndarray) -> np.ndarray | None:
@@ -278,17 +226,8 @@ class ForecastStream:
         if x.shape != (F,):
             raise InferenceInputError(f"push takes one frame of shape ({F},), got {tuple(x.shape)}")
         self.buffer.append(self.fc.normalizer.normalize(x)[None])
-        self.position += 1
         if len(self.buffer) < self.fc.observed_len:
             return None
         window = torch.stack(list(self.buffer), dim=1)  # (1, observed_len, D)
-        net = self.fc.net
-        if self.cache is not None:
-            first = self.position - self.fc.observed_len + 1
-            pred = net.decode_incremental(window, self.future_len, cache=self.cache, first_id=first)
-            for cem in self.cache:
-                if cem is not None:
-                    cem.prune(first + 1)  # rows of the dropped frame and of predictions
-        else:
-            pred = self.fc._run(window, self.future_len, action=self.action)
+        pred = self.fc._run(window, self.future_len, action=self.action)
         return self.fc.normalizer.unnormalize(pred)[0].cpu().numpy()

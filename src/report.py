@@ -202,11 +202,6 @@ def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
     return {"best": best or last, "last": last or best}, notes
 
 
-def find_checkpoint(run: Path) -> Path:
-    """The run's best checkpoint (see find_checkpoints)."""
-    return find_checkpoints(run)[0]["best"]
-
-
 def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
     """The checkpoint's training iteration, and the files the run's data copy lacked when it
     trained (training and test files; an evaluation of the checkpoint sees only the test

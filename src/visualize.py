@@ -23,20 +23,14 @@ import shutil
 from pathlib import Path
 
 import matplotlib
-import numpy as np
-import torch
 from omegaconf import DictConfig
 
 from src.data.base import MotionDataModule
-from src.data.synthetic import SyntheticDataModule
-from src.eval import load_for_eval
-from src.lit.factory import ConfigError, register_resolvers
-from src.lit.predictor import MotionPredictor
+from src.lit.factory import ConfigError, build_for_evaluation, register_resolvers
 from src.lit.runs import nothing_left_if_refused
 from src.lit.validation import check_number_types, hydra_entry, validate_eval_config
-from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
-from src.models.baselines import ZeroVelocity
-from src.reporting.plots import PoseRow, animate, frame_strip
+from src.metrics.kinematics import Skeleton
+from src.reporting.plots import animate, frame_strip, window_rows
 
 log = logging.getLogger(__name__)
 register_resolvers()
@@ -59,76 +53,6 @@ def select_window(dm: MotionDataModule, action: str, window: int) -> int:
             f"(0..{len(indices) - 1}) under the {dm.eval_protocol} protocol"
         )
     return indices[window]
-
-
-@torch.no_grad()
-def predict_window(dm: MotionDataModule, module: MotionPredictor, index: int) -> dict:
-    """Unnormalised full frames (F columns) of evaluation window `index`: `observed` (50, F),
-    `future` (T, F) ground truth and `prediction` (T, F), decoded fully autoregressively."""
-    item = dm.val_dataloader().dataset[index]
-    was_training = module.training
-    module.eval()  # dropout off, as in evaluation
-    try:
-        observed = item["observed"][None].to(module.device)
-        T = item["future"].shape[0]
-        pred = module(observed, T, action=item["action"][None].to(module.device))[0]
-    finally:
-        module.train(was_training)
-    norm = module.normalizer
-    return {
-        "observed": norm.unnormalize(observed[0]).cpu(),
-        "future": norm.unnormalize(item["future"].to(module.device)).cpu(),
-        "prediction": norm.unnormalize(pred).cpu(),
-    }
-
-
-def positions(frames: torch.Tensor, skeleton: Skeleton) -> np.ndarray:
-    """Joint positions (T, J, 3) of unnormalised frames (T, F), body frame, z up."""
-    xyz = forward_kinematics(frames.double(), skeleton, zero_global=True)
-    return yz_swap(xyz).numpy()
-
-
-def data_name(dm: MotionDataModule) -> str:
-    """The dataset's own name for titles: "synthetic" for the synthetic data, which reads as
-    H3.6M (its `dataset_name`, which picks the skeleton and the protocol) but is not."""
-    return "synthetic" if isinstance(dm, SyntheticDataModule) else dm.dataset_name
-
-
-def window_rows(
-    dm: MotionDataModule,
-    module: MotionPredictor,
-    action: str,
-    window: int = 0,
-    baseline: bool = True,
-    observed_shown: int = 25,
-    name: str | None = None,
-    dataset: str | None = None,
-) -> tuple[list[PoseRow], int, str]:
-    """(rows, n_observed, description) for `frame_strip` / `animate`: prediction, ground
-    truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
-    row is the last `observed_shown` observed frames followed by the future. The description
-    names `dataset` (default: the data's own name, see `data_name`)."""
-    index = select_window(dm, action, window)
-    frames = predict_window(dm, module, index)
-    obs = frames["observed"][-observed_shown:]
-    T = frames["future"].shape[0]
-    skeleton = Skeleton.load(module.dataset)
-    name = name or module.run_info.get("config", {}).get("model", {}).get("name")
-    name = name or type(module.net).__name__
-    rows = [
-        PoseRow(
-            f"prediction ({name})", positions(torch.cat([obs, frames["prediction"]]), skeleton)
-        ),
-        PoseRow("ground truth", positions(torch.cat([obs, frames["future"]]), skeleton), "green"),
-    ]
-    if baseline and not isinstance(module.net, ZeroVelocity):
-        # Zero-velocity repeats the last observed frame (protocol §7.1).
-        still = obs[-1:].expand(T, -1)
-        rows.append(PoseRow("zero-velocity", positions(torch.cat([obs, still]), skeleton), "blue"))
-    w = dm.eval_windows[index]
-    dataset = dataset or data_name(dm)
-    what = f"{name} on {dataset}: {action}, window {window} ({w.sequence}, start {w.start})"
-    return rows, len(obs), what
 
 
 def _writer(fmt: str, fps: float):
@@ -161,17 +85,15 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
         raise ConfigError(f"format={cfg.format!r}: choose one of {', '.join(FORMATS)}")
     _check_settings(cfg)
     validate_eval_config(cfg)
-    dm, module, model_cfg, dataset = load_for_eval(cfg)
+    dm, module = build_for_evaluation(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)
     rows, n_obs, what = window_rows(
         dm,
         module,
-        cfg.action,
-        int(cfg.window),
+        select_window(dm, cfg.action, int(cfg.window)),
         bool(cfg.baseline),
         observed_shown,
-        name=model_cfg["name"],
-        dataset=dataset,
+        dataset=module.run_info["config"]["data"]["name"],
     )
     skeleton = Skeleton.load(module.dataset)
     out_dir = Path(cfg.paths.output_dir)

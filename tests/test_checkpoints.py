@@ -73,6 +73,20 @@ def falling_error(monkeypatch):
     monkeypatch.setattr(MotionPredictor, "log_dict", falling)
 
 
+@pytest.fixture
+def best_at_the_second_validation(monkeypatch):
+    """Validation errors 5, 1, 3 at iterations 2, 4, 6: the best is the second validation."""
+    original = MotionPredictor.log_dict
+    errors = {2: 5.0, 4: 1.0, 6: 3.0}
+
+    def scripted(self, metrics, **kwargs):
+        if "val/euler_avg" in metrics:
+            metrics = {**metrics, "val/euler_avg": errors[int(self.iteration)]}
+        return original(self, metrics, **kwargs)
+
+    monkeypatch.setattr(MotionPredictor, "log_dict", scripted)
+
+
 def _run(out, data_dir, *overrides):
     cfg = compose_config("train", [*TINY, *overrides], out, data_dir)
     score = train(cfg)
@@ -115,7 +129,36 @@ def test_checkpoint_every_writes_last_between_validations(tmp_path, synthetic_da
              "checkpoint_every=2")  # fmt: skip
     finally:
         mp.undo()
-    assert seen == [2, 4, 6, 6]  # 6 twice: the periodic save, then validation's (a no-op)
+    # 6 once: the epoch's last iteration is saved after its validation, not before it.
+    assert seen == [2, 4, 6]
+
+
+def test_last_ckpt_holds_the_final_validation_when_checkpoint_every_divides_val_every(
+    best_at_the_second_validation, tmp_path, synthetic_data_dir
+):
+    """The periodic save at an epoch's last iteration came before that epoch's validation, and
+    the save after the validation was skipped as a second one at the same iteration: last.ckpt
+    then forgot the validation's best, and a resume that trained longer replaced it by a worse
+    one."""
+    first = tmp_path / "first"
+    _run(first, synthetic_data_dir, "iterations=4", "val_every=2", "checkpoint_every=2")
+    best_first = first / "checkpoints" / "best-epoch001.ckpt"
+    last = _load(first / "checkpoints" / LAST)
+    (best_state,) = [s for s in last["callbacks"].values() if "best_model_score" in s]
+    assert float(best_state["best_model_score"]) == 1.0
+    assert best_state["best_model_path"] == str(best_first)
+
+    second = tmp_path / "second"
+    score, summary = _run(
+        second,
+        synthetic_data_dir,
+        "iterations=6",
+        "val_every=2",
+        "checkpoint_every=2",
+        f"ckpt_path={first / 'checkpoints' / LAST}",
+    )
+    assert score == 1.0 and summary["best_checkpoint"] == str(best_first)
+    assert not list((second / "checkpoints").glob("best-*.ckpt"))
 
 
 def test_best_checkpoint_is_lean_and_loads_for_eval_and_inference(tmp_path, synthetic_data_dir):

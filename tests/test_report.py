@@ -14,7 +14,6 @@ from src.report import (
     comparison_lines,
     discover_runs,
     evaluate_run,
-    find_checkpoint,
     find_checkpoints,
     gap_lines,
     group_runs,
@@ -110,7 +109,7 @@ def test_best_checkpoint_is_the_one_summary_yaml_names(tmp_path):
         "best": run / "checkpoints" / "best-epoch003.ckpt",
         "last": run / "checkpoints" / "last.ckpt",
     }
-    assert notes == [] and find_checkpoint(run) == checkpoints["best"]
+    assert notes == []
 
 
 def test_best_checkpoint_of_an_earlier_folder_after_a_resume(tmp_path):

@@ -126,7 +126,7 @@ def test_published_numbers_only_beside_results_on_their_dataset():
 
 @pytest.fixture(scope="module")
 def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
-    from src.eval import load_for_eval
+    from src.lit.factory import build_for_evaluation
 
     cfg = compose_config(
         "visualize",
@@ -134,7 +134,9 @@ def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
         tmp_path_factory.mktemp("eval"),
         synthetic_data_dir,
     )
-    dm, module, model_cfg, dataset = load_for_eval(cfg)
+    dm, module = build_for_evaluation(cfg)
+    model_cfg = module.run_info["config"]["model"]
+    dataset = module.run_info["config"]["data"]["name"]
     L.Trainer(accelerator="cpu", logger=False, enable_progress_bar=False).test(
         module, datamodule=dm, verbose=False
     )
@@ -153,10 +155,10 @@ def test_eval_tables_of_synthetic_data_carry_no_published_numbers(synthetic_zero
 
 
 def test_visualize_title_names_the_real_dataset(synthetic_zero_velocity):
-    from src.visualize import window_rows
+    from src.reporting.plots import window_rows
 
     dm, module, _, _ = synthetic_zero_velocity
-    _, _, what = window_rows(dm, module, "walking", observed_shown=5)
+    _, _, what = window_rows(dm, module, 0, observed_shown=5)
     assert " on synthetic: walking, window 0" in what
     assert "h36m" not in what
 

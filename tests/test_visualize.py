@@ -9,8 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
-from src.eval import load_for_eval
-from src.lit.factory import ConfigError
+from src.lit.factory import ConfigError, build_for_evaluation
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.plot_errors import plot_errors
 from src.reporting.plots import (
@@ -20,9 +19,10 @@ from src.reporting.plots import (
     frame_strip,
     skeleton_bones,
     strip_frames,
+    window_rows,
 )
 from src.reporting.tables import ResultTable
-from src.visualize import select_window, window_rows
+from src.visualize import select_window
 from tests.conftest import compose_config, run_module
 
 matplotlib.use("Agg")
@@ -92,22 +92,22 @@ def synthetic_baseline(tmp_path_factory, synthetic_data_dir):
         tmp_path_factory.mktemp("viz"),
         synthetic_data_dir,
     )
-    dm, module, _, _ = load_for_eval(cfg)
-    return dm, module
+    return build_for_evaluation(cfg)
 
 
 def test_window_rows_put_observed_frames_before_future(synthetic_baseline):
     dm, module = synthetic_baseline
-    rows, n_obs, what = window_rows(dm, module, "eating", window=1, observed_shown=10)
+    index = select_window(dm, "eating", 1)
+    assert dm.eval_windows[index].action == "eating"
+    rows, n_obs, what = window_rows(dm, module, index, observed_shown=10)
     # The model is zero-velocity itself, so no extra baseline row.
-    assert [r.label for r in rows] == ["prediction (ZeroVelocity)", "ground truth"]
+    assert [r.label for r in rows] == ["prediction (zero_velocity)", "ground truth"]
     assert n_obs == 10 and all(r.positions.shape == (10 + 25, 32, 3) for r in rows)
     pred, truth = rows[0].positions, rows[1].positions
     np.testing.assert_allclose(pred[:n_obs], truth[:n_obs])  # same observed frames
     np.testing.assert_allclose(pred[n_obs:], np.repeat(truth[n_obs - 1 : n_obs], 25, 0))
     assert not np.allclose(truth[n_obs:], truth[n_obs - 1])  # the synthetic motion moves
-    index = select_window(dm, "eating", 1)
-    assert dm.eval_windows[index].action == "eating"
+    assert f"eating, window 1 ({dm.eval_windows[index].sequence}, start " in what
     assert f"start {dm.eval_windows[index].start}" in what
 
 

@@ -35,7 +35,6 @@ from src.data.normalization import Normalizer
 log = logging.getLogger(__name__)
 
 LAST = "last.ckpt"
-RESUME_KEYS = ("optimizer_states", "lr_schedulers", "loops", "callbacks")
 
 
 class CheckpointError(ValueError):
@@ -54,11 +53,6 @@ class TrainingInterrupted(RuntimeError):
 
 
 # ---------------------------------------------------------------------------- writing
-def slim(ckpt: dict) -> dict:
-    """What evaluation and inference need: no optimiser, scheduler, loop or callback state."""
-    return {k: v for k, v in ckpt.items() if k not in RESUME_KEYS}
-
-
 class LastCheckpoint(Checkpoint):
     """Writes the resumable `last.ckpt` at every validation, every `every` iterations (0: off)
     and, on SIGINT/SIGTERM, after the iteration in progress; then training stops with
@@ -73,7 +67,6 @@ class LastCheckpoint(Checkpoint):
         self.every = int(every)
         self._signal: int | None = None
         self._previous: dict[int, Any] = {}
-        self._saved_at = -1
 
     # Handlers are installed inside fit (after Lightning's own SIGTERM connector) and the
     # previous ones restored at teardown, so nothing outlives the run.
@@ -102,22 +95,32 @@ class LastCheckpoint(Checkpoint):
         )
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        iteration = int(pl_module.iteration)
-        if iteration == self._saved_at:
-            return
         tmp = self.path.with_name(f".{LAST}.partial")
         trainer.save_checkpoint(tmp)  # every rank takes part; only rank 0 writes
         if trainer.is_global_zero:
             os.replace(tmp, self.path)
         trainer.strategy.barrier("last_checkpoint")
-        self._saved_at = iteration
+
+    def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:
+        """The signal that stops training, the same on every rank. A signal may reach one
+        process only (`kill <pid>` of the command a user started), or the ranks at different
+        iterations: a rank that stopped to save alone would wait at the save's barrier while
+        the others trained on, a hang. One all-reduce per iteration, in distributed runs only."""
+        if trainer.world_size == 1:
+            return self._signal
+        signum = torch.tensor(self._signal or 0, device=pl_module.device)
+        torch.distributed.all_reduce(signum, op=torch.distributed.ReduceOp.MAX)
+        return int(signum) or None
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         iteration = int(pl_module.iteration)
-        if self._signal is not None:
+        signum = self._stop_signal(trainer, pl_module)
+        if signum is not None:
             self.save(trainer, pl_module)
-            raise TrainingInterrupted(self._signal, self.path, iteration)
-        if self.every and iteration % self.every == 0:
+            raise TrainingInterrupted(signum, self.path, iteration)
+        # Not at the epoch's last iteration: its validation comes next and the epoch's end
+        # saves after it; a save here would hold the state from before that validation.
+        if self.every and iteration % self.every == 0 and not trainer.is_last_batch:
             self.save(trainer, pl_module)
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -278,47 +281,3 @@ def check_normalizer(
             "statistics (different training files or actions). Use the same data config "
             "(data.actions, subjects, allow_partial) as the run that wrote it."
         )
-
-
-def normalizer_from_checkpoint(ckpt: dict) -> Normalizer:
-    state = ckpt["state_dict"]
-    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
-    normalizer.load_state_dict(
-        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
-    )
-    return normalizer
-
-
-def load_weights(module: torch.nn.Module, ckpt: dict, path: str | Path) -> None:
-    missing, unexpected = module.load_state_dict(ckpt["state_dict"], strict=False)
-    missing = [k for k in missing if not k.startswith(("euler.", "mpjpe."))]
-    if missing or unexpected:
-        raise CheckpointError(
-            f"checkpoint {path} does not fit the rebuilt model: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}. It was written by an incompatible version."
-        )
-
-
-def module_from_checkpoint(ckpt: dict, cfg: DictConfig, path: str | Path):
-    """Rebuild (datamodule, module) from a checkpoint; the normaliser comes from the checkpoint,
-    so evaluation never re-reads the training data."""
-    from src.lit.factory import build_datamodule, build_module
-
-    saved = OmegaConf.create(ckpt["motion"]["config"])
-    check_compatible(ckpt, cfg, path)
-    data_cfg = saved.data
-    # Where data lives is a property of this machine, not of the checkpoint.
-    for key in ("data_dir", "archive_dir"):
-        data_cfg[key] = cfg.paths[key]
-    if cfg.get("data") is not None:  # evaluation settings (protocol, batch size) may differ
-        for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
-            data_cfg[key] = cfg.data[key]
-    if cfg.get("protocol"):
-        data_cfg.eval_protocol = cfg.protocol
-    dm = build_datamodule(data_cfg, normalizer=normalizer_from_checkpoint(ckpt))
-    dm.prepare_data()
-    dm.setup("validate")
-    module_cfg = OmegaConf.merge(saved, {"metrics": cfg.metrics, "sampling": saved.get("sampling")})
-    module = build_module(module_cfg, dm, run_info=ckpt["motion"])
-    load_weights(module, ckpt, path)
-    return dm, module

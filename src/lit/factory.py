@@ -1,10 +1,12 @@
-"""Turns composed Hydra configs into datamodules and LightningModules. The entry points
-(train, eval, visualize) only call these functions; checkpoints live in src/lit/checkpoints.py."""
+"""Turns composed Hydra configs, and checkpoints, into datamodules and LightningModules. The
+entry points (train, eval, visualize, report) and MotionForecaster only call these functions;
+checkpoint files are written, read and checked in src/lit/checkpoints.py."""
 
 from __future__ import annotations
 
 import inspect
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +16,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
+from src.lit.checkpoints import CheckpointError, check_compatible, read_checkpoint
 from src.lit.predictor import MotionPredictor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -73,6 +76,29 @@ def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None)
     return dm
 
 
+@dataclass(frozen=True)
+class DataFacts:
+    """What building a model needs to know of its data. A set-up MotionDataModule has all of
+    it (build_module takes either); a checkpoint holds it too, so `load_trained` rebuilds a
+    model without its data files."""
+
+    normalizer: Normalizer
+    actions: list[str]
+    dataset_name: str
+    conv_padding: str
+    frame_ms: float
+    observed_len: int
+    future_len: int
+
+    @property
+    def pose_dim(self) -> int:
+        return self.normalizer.pose_dim
+
+    @property
+    def num_actions(self) -> int:
+        return len(self.actions)
+
+
 # ---------------------------------------------------------------------------- models
 def _instantiate_with_data(node: DictConfig, dm, **extra):
     """Instantiate a network config, filling in what only the data knows (pose dimension,
@@ -89,7 +115,8 @@ def _instantiate_with_data(node: DictConfig, dm, **extra):
 
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
-    """The LightningModule for `cfg.model` (+ `cfg.adversarial`, `cfg.sampling`) on `dm`."""
+    """The LightningModule for `cfg.model` (+ `cfg.adversarial`, `cfg.sampling`) on `dm`, a
+    set-up datamodule or the DataFacts of a checkpoint."""
     net = _instantiate_with_data(cfg.model.net, dm)
     adv = cfg.get("adversarial") or {"enabled": False}
     discriminator = d_optimizer = None
@@ -122,3 +149,90 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
         compile=cfg.get("compile", {}).get("enabled", "auto"),
         compile_mode=cfg.get("compile", {}).get("mode", "reduce-overhead"),
     )
+
+
+# ---------------------------------------------------------------------------- trained models
+def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredictor:
+    """The one way to load a trained model: checkpoint path -> its MotionPredictor in eval mode,
+    with its weights, normaliser (`.normalizer`) and saved config (`.run_info["config"]`),
+    rebuilt from the checkpoint alone (no data file is read).
+
+    `cfg`, an evaluation config: refuse a checkpoint whose model or data differ from its
+    model= / data=, and take its metric settings (`metrics.dim_rule`)."""
+    ckpt = read_checkpoint(path)
+    if cfg is not None:
+        check_compatible(ckpt, cfg, path)
+    motion, state = ckpt["motion"], ckpt["state_dict"]
+    saved = OmegaConf.create(motion["config"])
+    if "normalizer.mean" not in state:
+        raise CheckpointError(f"{path} holds no normaliser (normalizer.* buffers)")
+    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
+    normalizer.load_state_dict(
+        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
+    )
+    data = hydra.utils.get_class(saved.data._target_)  # the class attributes only
+    facts = DataFacts(
+        normalizer,
+        list(motion["actions"]),
+        data.dataset_name,
+        data.conv_padding,
+        data.frame_ms,
+        saved.data.observed_len,
+        saved.data.future_len,
+    )
+    if cfg is not None and cfg.get("metrics") is not None:
+        saved.metrics = cfg.metrics
+    try:
+        module = build_module(saved, facts, run_info=motion)
+    except (InstantiationException, TypeError) as err:
+        raise CheckpointError(
+            f"cannot rebuild the model of {path} from its saved config: {err.__cause__ or err}. "
+            "It was written by an incompatible version."
+        ) from err
+    missing, unexpected = module.load_state_dict(state, strict=False)
+    missing = [k for k in missing if not k.startswith(("euler.", "mpjpe."))]
+    if missing or unexpected:
+        raise CheckpointError(
+            f"checkpoint {path} does not fit the rebuilt model: missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]}. It was written by an incompatible version."
+        )
+    return module.eval()
+
+
+def build_for_evaluation(cfg: DictConfig):
+    """(datamodule of the test windows, module) for src.eval and src.visualize: the trained
+    model of `cfg.ckpt_path` on its own data config, or the baseline of `cfg.model` on
+    `cfg.data`. `module.run_info["config"]` names the model and data in both cases."""
+    if cfg.ckpt_path:
+        module = load_trained(cfg.ckpt_path, cfg)
+        data_cfg = OmegaConf.create(module.run_info["config"]["data"])
+        # Where data lives is a property of this machine, not of the checkpoint.
+        for key in ("data_dir", "archive_dir"):
+            data_cfg[key] = cfg.paths[key]
+        if cfg.get("data") is not None:  # evaluation settings (protocol, windows) may differ
+            for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
+                data_cfg[key] = cfg.data[key]
+        normalizer = module.normalizer
+    elif cfg.get("model") is None or cfg.get("data") is None:
+        raise ConfigError(
+            "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
+            "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
+        )
+    else:
+        data_cfg, normalizer = cfg.data.copy(), None
+    if cfg.get("protocol"):
+        data_cfg.eval_protocol = cfg.protocol
+    dm = build_datamodule(data_cfg, normalizer=normalizer)
+    dm.prepare_data()
+    dm.setup("validate")
+    if cfg.ckpt_path:
+        return dm, module
+    config = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in ("model", "data")}
+    module = build_module(cfg, dm, run_info={"commit": git_commit(), "config": config})
+    if module.trainable:
+        raise ConfigError(
+            f"model={cfg.model.name} is a trainable network and no ckpt_path was given; the "
+            "numbers of an untrained network mean nothing. Train it with `python -m src.train "
+            f"model={cfg.model.name} ...` and pass ckpt_path=<its checkpoint>."
+        )
+    return dm, module.eval()

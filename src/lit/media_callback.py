@@ -8,22 +8,20 @@ from lightning.pytorch.callbacks import Callback
 from omegaconf import DictConfig
 
 from src.metrics.kinematics import Skeleton
-from src.reporting.plots import frame_strip
+from src.reporting.plots import frame_strip, window_rows
 
 
 class FrameStripLogger(Callback):
-    """Draw prediction, ground truth and zero-velocity of one window (`window`-th of `action`,
-    default the first evaluable action) every `every_n_validations` validations.
+    """Draw prediction, ground truth and zero-velocity of the first evaluation window (the
+    first evaluable action's) every `every_n_validations` validations.
 
     Cheap by design: one window, one forward pass, one figure. Skipped during the sanity check,
     under fast_dev_run, and when the logger cannot take figures (no TensorBoard)."""
 
-    def __init__(self, every_n_validations: int = 1, action: str | None = None, window: int = 0):
+    def __init__(self, every_n_validations: int = 1):
         if every_n_validations < 1:
             raise ValueError(f"every_n_validations={every_n_validations} must be >= 1")
         self.every_n_validations = every_n_validations
-        self.action = action
-        self.window = window
         self._validations = 0
 
     @classmethod
@@ -42,13 +40,10 @@ class FrameStripLogger(Callback):
         dm = trainer.datamodule
         if not hasattr(experiment, "add_figure") or not getattr(dm, "eval_windows", None):
             return
-        from src.visualize import window_rows  # here: src.visualize imports the entry points
-
-        action = self.action or dm.eval_windows[0].action
-        rows, n_obs, what = window_rows(dm, pl_module, action, self.window, observed_shown=10)
+        rows, n_obs, what = window_rows(dm, pl_module, 0, observed_shown=10)
         step = int(getattr(pl_module, "iteration", trainer.global_step))
         fig = frame_strip(
             rows, Skeleton.load(pl_module.dataset), n_obs, dm.frame_ms, step=4, n_before=2,
             title=f"{what}, iteration {step}",
         )  # fmt: skip
-        experiment.add_figure(f"media/{action}_window{self.window}", fig, global_step=step)
+        experiment.add_figure(f"media/{dm.eval_windows[0].action}_window0", fig, global_step=step)

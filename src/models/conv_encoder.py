@@ -15,9 +15,7 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
-from torch.optim.optimizer import register_optimizer_step_post_hook
 
 from src.models.dropout import Dropout
 
@@ -84,35 +82,6 @@ def tf_init_(module: nn.Module) -> None:
                 nn.init.zeros_(m.bias)
 
 
-# Packed weights are repacked when a weight may have changed: its storage or version counter
-# (load_state_dict, in-place ops, .to()), a mode switch, or any optimiser step — the fused
-# optimisers update weights in place without bumping their version counters (torch 2.13).
-_optimizer_steps = 0
-
-
-def _count_step(*_) -> None:
-    global _optimizer_steps
-    _optimizer_steps += 1
-
-
-register_optimizer_step_post_hook(_count_step)
-
-
-_ONEDNN = torch.backends.mkldnn.is_available()
-
-
-def packed_inference(x: Tensor) -> bool:
-    """Whether ConvEncoder.conv_act may use oneDNN's packed-weight convolution on x: no
-    autograd, float32 on the CPU, a build with oneDNN, not tracing or compiling (export)."""
-    return (
-        _ONEDNN
-        and not torch.is_grad_enabled()
-        and x.device.type == "cpu"
-        and x.dtype == torch.float32
-        and not (torch.jit.is_tracing() or torch.compiler.is_compiling())
-    )
-
-
 class ConvEncoder(nn.Module):
     """CEM: 3 x [TF-padded Conv2d(no bias) -> leaky ReLU 0.2 -> dropout] -> flatten -> Linear.
 
@@ -162,11 +131,6 @@ class ConvEncoder(nn.Module):
         # Linear code, no activation (protocol §6.2 table, last row).
         self.fc = nn.Linear(self.flat_dim, d_out)
         tf_init_(self)
-        self._packed: dict[int, tuple[tuple, Tensor]] = {}  # see conv_act
-        # (pad, conv, act, dropout) of each convolution, grouped once: conv_act runs 75 times
-        # per prediction.
-        mods = tuple(self.convs)
-        self.layers = tuple(mods[i : i + 4] for i in range(0, len(mods), 4))
 
     def forward(self, x: Tensor) -> Tensor:
         """(B, in_len, pose_dim) -> (B, d_out)."""
@@ -174,140 +138,8 @@ class ConvEncoder(nn.Module):
             raise ValueError(
                 f"ConvEncoder expects (B, {self.in_len}, {self.pose_dim}), got {tuple(x.shape)}"
             )
-        h = x.unsqueeze(1)
-        # Padding stays a separate F.pad even where TF's is symmetric (conv2 on H3.6M) and the
-        # convolution could pad by itself, 6% faster: in torch 2.13 oneDNN then gets the input
-        # gradient wrong at 128+ channels (tests/test_models_conv.py, ..._native_convolutions).
-        for i, (pad, *_) in enumerate(self.layers):
-            h = self.conv_act(i, F.pad(h, pad.padding))
-        return self.fc(torch.flatten(h, 1))
-
-    def train(self, mode: bool = True) -> ConvEncoder:
-        self._packed = {}
-        return super().train(mode)
-
-    def conv_act(self, i: int, x: Tensor) -> Tensor:
-        """Convolution i, its leaky ReLU and dropout, on an input already (TF-)padded.
-
-        Without autograd on the CPU (prediction, and the generator's pass that makes the
-        discriminator step's fakes) the convolution runs on weights packed once for oneDNN,
-        with the activation fused. Why: PyTorch picks its slow convolution for the small inputs
-        of batch-1 prediction, or repacks the weights on every call, and a prediction makes 75
-        of these calls: 16.7 -> 10 ms at batch 1 on one thread (3% at batch 16). The first
-        layer (one input channel) is faster unpacked. Results equal the unpacked path to float
-        rounding, and dropout draws the same masks (tests/test_models_conv.py).
-        """
-        _, conv, act, drop = self.layers[i]
-        if i > 0 and packed_inference(x):
-            key = (conv.weight.data_ptr(), conv.weight._version, _optimizer_steps)
-            if self._packed.get(i, (None,))[0] != key:
-                w = torch.ops.mkldnn._reorder_convolution_weight(
-                    conv.weight, [0, 0], list(conv.stride), [1, 1], 1, list(x.shape)
-                )
-                self._packed[i] = (key, w)
-            y = torch.ops.mkldnn._convolution_pointwise(
-                x, self._packed[i][1], None, [0, 0], list(conv.stride), [1, 1], 1,
-                "leaky_relu", [act.negative_slope], "",
-            )  # fmt: skip
-        else:
-            y = act(conv(x))
-        return drop(y) if drop.training else y
-
-
-class IncrementalCEM:
-    """Feature-map rows of one ConvEncoder, computed once and reused by later windows.
-
-    Why: the short-term window of eq. (5) slides by one frame per decoding step, and a
-    stride-2 convolution row depends only on the rows under its kernel. A row is identified
-    by *what it was computed from*: at layer 0 a frame id, at layer l the tuple of the
-    layer-(l-1) row ids under its kernel (None where the kernel sees TF zero padding). Two
-    rows with the same identity hold the same numbers, so a window only computes the rows
-    whose identity is new — the ones touched by the new frame, and the ones near the window
-    ends that see padding. This is exact for any kernel, stride and padding (SAME / VALID),
-    as long as dropout is off or its masks may be shared (the caller decides that).
-
-    Frame ids are chosen by the caller: ids >= 0 are "stable" frames (observed data that
-    keeps its id across calls, e.g. a stream position), ids < 0 are transient (predictions).
-    `prune` drops what a later call can no longer reuse, so a long-lived stream stays small.
-    """
-
-    def __init__(self, encoder: ConvEncoder):
-        self.encoder = encoder
-        self.layers = encoder.layers
-        n = len(self.layers) + 1
-        self.keys: list[dict[tuple, int]] = [{} for _ in range(n)]  # identity -> row id
-        self.rows: list[dict[int, Tensor]] = [{} for _ in range(n)]  # row id -> (B, ch, W)
-        self.oldest: list[dict[int, int | None]] = [{} for _ in range(n)]  # oldest stable frame
-        self._next = [0] * n
-
-    def add_frame(self, frame_id: int, frame: Tensor) -> None:
-        """Register frame (B, D) under the caller's id (layer-0 row)."""
-        self.rows[0][frame_id] = frame.unsqueeze(1)  # one input channel
-        self.oldest[0][frame_id] = frame_id if frame_id >= 0 else None
-
-    def encode(self, frame_ids: list[int]) -> Tensor:
-        """The encoder's output (B, d_out) on the window made of these registered frames."""
-        enc = self.encoder
-        if len(frame_ids) != enc.in_len:
-            raise ValueError(f"window has {len(frame_ids)} frames, the encoder {enc.in_len}")
-        ids: list[int | None] = list(frame_ids)
-        for level, (pad, conv, _, _) in enumerate(self.layers, start=1):
-            left, right, top, _ = pad.padding
-            (kh, _), (s, _) = conv.kernel_size, conv.stride
-            n_in, n_out = len(ids), enc.shapes[level - 1][1]
-            keymap, rows, below = self.keys[level], self.rows[level], self.rows[level - 1]
-            out_ids = []
-            for j in range(n_out):
-                key = tuple(
-                    ids[r] if 0 <= r < n_in else None for r in range(s * j - top, s * j - top + kh)
-                )
-                rid = keymap.get(key)
-                if rid is None:
-                    rid = keymap[key] = self._next[level]
-                    self._next[level] += 1
-                    olds = [self.oldest[level - 1][i] for i in key if i is not None]
-                    stable = all(o is not None for o in olds)
-                    self.oldest[level][rid] = min(olds) if stable and olds else None
-                out_ids.append(rid)
-            # Contiguous runs of rows to compute, each with one conv call.
-            missing = [j for j, rid in enumerate(out_ids) if rid not in rows]
-            runs: list[list[int]] = []
-            for j in missing:
-                if runs and runs[-1][-1] == j - 1:
-                    runs[-1].append(j)
-                else:
-                    runs.append([j])
-            for run in runs:
-                j0, j1 = run[0], run[-1]
-                zero = None
-                parts = []
-                for r in range(s * j0 - top, s * j1 - top + kh):
-                    if 0 <= r < n_in:
-                        parts.append(below[ids[r]])
-                    else:  # TF zero padding of this layer's input
-                        if zero is None:
-                            ref = below[next(i for i in ids if i is not None)]
-                            zero = ref.new_zeros(ref.shape)
-                        parts.append(zero)
-                x = torch.stack(parts, dim=2)
-                if left or right:
-                    x = nn.functional.pad(x, (left, right))
-                y = enc.conv_act(level - 1, x)
-                for j, row in zip(run, y.unbind(2), strict=True):
-                    rows[out_ids[j]] = row
-            ids = out_ids
-        h = torch.stack([self.rows[-1][i] for i in ids], dim=2)
-        return enc.fc(torch.flatten(h, 1))
-
-    def prune(self, oldest_frame: int) -> None:
-        """Keep only rows built from stable frames >= oldest_frame (the rest cannot recur)."""
-        for level in range(len(self.rows)):
-            old = self.oldest[level]
-            dead = {i for i, o in old.items() if o is None or o < oldest_frame}
-            if not dead:
-                continue
-            for i in dead:
-                del old[i]
-                self.rows[level].pop(i, None)
-            if level:
-                self.keys[level] = {k: v for k, v in self.keys[level].items() if v not in dead}
+        # Padding stays a layer of its own (ZeroPad2d) even where TF's is symmetric (conv2 on
+        # H3.6M) and the convolution could pad by itself, 6% faster: in torch 2.13 oneDNN then
+        # gets the input gradient wrong at 128+ channels (tests/test_models_conv.py,
+        # ..._native_convolutions).
+        return self.fc(torch.flatten(self.convs(x.unsqueeze(1)), 1))

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from src.models.conv_encoder import ConvEncoder, IncrementalCEM, conv_shapes, tf_init_
+from src.models.conv_encoder import ConvEncoder, conv_shapes, tf_init_
 from src.models.dropout import Dropout
 
 
@@ -42,15 +42,6 @@ class ConvSeq2Seq(nn.Module):
             observed_len - 1 of them.
         reference_eta_offset: reproduce the reference's off-by-one in eq. (10) (§6.4).
         d_dec: hidden width of the spatial decoder (512, paper §3.2).
-        incremental: reuse the short-term CEM rows that consecutive windows share instead of
-            re-encoding every window (IncrementalCEM). Used only where it gives the same
-            numbers as recomputing: in eval mode, or in training when the CEM dropout is 0
-            (or `share_dropout_masks`), and on the CPU only (slower than recomputing on a
-            GPU). False always recomputes (the reference's way).
-        share_dropout_masks: also run incrementally in training with dropout > 0. A kept
-            row then keeps the dropout mask it was drawn with, where recomputing draws a
-            fresh mask per window: a (correlated-mask) variant of the reference, not the same
-            regulariser, hence off by default.
     """
 
     def __init__(
@@ -68,8 +59,6 @@ class ConvSeq2Seq(nn.Module):
         observed_len: int = 50,
         reference_eta_offset: bool = False,
         d_dec: int = 512,
-        incremental: bool = True,
-        share_dropout_masks: bool = False,
     ):
         super().__init__()
         if not 1 <= C <= observed_len:
@@ -84,7 +73,6 @@ class ConvSeq2Seq(nn.Module):
         self.pose_dim, self.num_actions = pose_dim, num_actions
         self.C, self.observed_len = C, observed_len
         self.long_term, self.reference_eta_offset = long_term, reference_eta_offset
-        self.incremental, self.share_dropout_masks = incremental, share_dropout_masks
 
         cem = dict(d_out=d_z, nf=nf, kernel=kernel, padding=padding, dropout=dropout)
         # eq. (1): long-term encoder over frames 0..observed_len-2 (protocol §6.1)
@@ -118,11 +106,6 @@ class ConvSeq2Seq(nn.Module):
             observed, self.observed_len, self.pose_dim, future_len, future, eta
         )
         mix = mixes(future, eta)
-
-        # Reusing rows pays on the CPU only: on an H100 it was slower than recomputing at batch
-        # 1 and 256 (docs/performance.md, shared measurements of 58436ca).
-        if self.uses_incremental() and observed.device.type == "cpu":
-            return self.decode_incremental(observed, future_len, future, eta)
         z_l = self.long_encoder(observed[:, : self.observed_len - 1]) if self.long_term else None
         decoder = self._decoder(z_l, B)
         window = observed[:, -self.C :]  # frames 50-C .. 49
@@ -169,69 +152,6 @@ class ConvSeq2Seq(nn.Module):
         next step, which leaks (1-eta) of that target through the residual."""
         gt = future[:, k + 1] if self.reference_eta_offset else future[:, k]
         return eta * pred + (1.0 - eta) * gt
-
-    def uses_incremental(self) -> bool:
-        """Whether forward() reuses CEM rows: only where that is exact (see `incremental`)."""
-        if not self.incremental or not isinstance(self.short_encoder, ConvEncoder):
-            return False  # a stand-in encoder (tests) is called window by window
-        if not self.training or self.share_dropout_masks:
-            return True
-        return all(m.p == 0 for m in self.short_encoder.modules() if isinstance(m, nn.Dropout))
-
-    def new_cache(self) -> tuple[IncrementalCEM | None, IncrementalCEM]:
-        """Row caches of (long-term, short-term) encoders for decode_incremental."""
-        long = IncrementalCEM(self.long_encoder) if self.long_term else None
-        return long, IncrementalCEM(self.short_encoder)
-
-    def decode_incremental(
-        self,
-        observed: Tensor,
-        future_len: int,
-        future: Tensor | None = None,
-        eta: float | Tensor = 1.0,
-        cache: tuple[IncrementalCEM | None, IncrementalCEM] | None = None,
-        first_id: int = 0,
-    ) -> Tensor:
-        """forward() with row reuse between the windows of eq. (5).
-
-        Observed frame i gets the stable id first_id + i; predictions get fresh negative ids.
-        Passing the same `cache` with increasing first_id (a stream of frames) also reuses
-        rows across calls; the caller prunes it (IncrementalCEM.prune).
-        """
-        B = check_forward_inputs(
-            observed, self.observed_len, self.pose_dim, future_len, future, eta
-        )
-        mix = mixes(future, eta)
-        ids = list(range(first_id, first_id + self.observed_len))
-        # One call without a cache encodes the long-term window once: nothing to share.
-        long, short = cache if cache is not None else (None, IncrementalCEM(self.short_encoder))
-        for cem in (long, short):
-            if cem is not None:
-                for i, fid in enumerate(ids):
-                    if fid not in cem.rows[0]:
-                        cem.add_frame(fid, observed[:, i])
-        if not self.long_term:
-            z_l = None
-        elif long is not None:
-            z_l = long.encode(ids[:-1])
-        else:
-            z_l = self.long_encoder(observed[:, :-1])
-        decoder = self._decoder(z_l, B)
-        window = ids[-self.C :]
-        # Transient ids continue below any already in the cache (a stream reuses it).
-        next_id = min([-1, *(i - 1 for i in short.rows[0] if i < 0)])
-        preds = []
-        for k in range(future_len):
-            z_s = short.encode(window)  # eq. (4)
-            pred = decoder(z_s) + short.rows[0][window[-1]][:, 0]  # eq. (6)
-            preds.append(pred)
-            if k == future_len - 1:
-                break  # as in forward(): the last window is never read
-            nxt = self._next_frame(pred, future, k, eta) if mix else pred
-            short.add_frame(next_id, nxt)
-            window = window[1:] + [next_id]  # eq. (5)
-            next_id -= 1
-        return torch.stack(preds, dim=1) if preds else observed.new_zeros(B, 0, self.pose_dim)
 
 
 def mixes(future: Tensor | None, eta: float | Tensor) -> bool:

@@ -1,4 +1,6 @@
-"""Pictures of motion: 3D stick figures, frame strips, animations, error-versus-horizon curves.
+"""Pictures of motion: 3D stick figures, frame strips, animations, error-versus-horizon curves,
+and the rows of one evaluation window (`window_rows`) that src.visualize and the TensorBoard
+frame-strip callback draw.
 
 Poses are joint positions (J, 3) from `src.metrics.kinematics.forward_kinematics` after
 `yz_swap`, so the third coordinate points up (matplotlib's 3D z axis) and the figure stands.
@@ -16,10 +18,14 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+import torch
 from matplotlib.animation import FuncAnimation
 from matplotlib.figure import Figure
 
-from src.metrics.kinematics import Skeleton
+from src.data.base import MotionDataModule
+from src.data.synthetic import SyntheticDataModule
+from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
+from src.models.baselines import ZeroVelocity
 
 # (right side and spine, left side): two shades tell the limbs apart.
 OBSERVED = ("#303030", "#9a9a9a")
@@ -63,15 +69,80 @@ def bone_sides(skeleton: Skeleton, bones: Sequence[tuple[int, int]]) -> np.ndarr
     return np.array([int(c in left) for _, c in bones], dtype=int)
 
 
-def rest_pose(skeleton: Skeleton) -> np.ndarray:
-    """Joint positions (J, 3) of the rest pose (every rotation zero), y up as the skeleton."""
-    offsets = skeleton.offsets.numpy()
-    out = np.zeros_like(offsets)
-    for j, p in enumerate(skeleton.parents):
-        out[j] = offsets[j] + (out[p] if p >= 0 else 0.0)
-    return out
+# ---------------------------------------------------------------------------- one window
+def positions(frames: torch.Tensor, skeleton: Skeleton) -> np.ndarray:
+    """Joint positions (T, J, 3) of unnormalised frames (T, F), body frame, z up."""
+    xyz = forward_kinematics(frames.double(), skeleton, zero_global=True)
+    return yz_swap(xyz).numpy()
 
 
+@torch.no_grad()
+def predict_window(dm: MotionDataModule, module, index: int) -> dict:
+    """Unnormalised full frames (F columns) of evaluation window `index`: `observed` (50, F),
+    `future` (T, F) ground truth and `prediction` (T, F), decoded fully autoregressively."""
+    item = dm.val_dataloader().dataset[index]
+    was_training = module.training
+    module.eval()  # dropout off, as in evaluation
+    try:
+        observed = item["observed"][None].to(module.device)
+        T = item["future"].shape[0]
+        pred = module(observed, T, action=item["action"][None].to(module.device))[0]
+    finally:
+        module.train(was_training)
+    norm = module.normalizer
+    return {
+        "observed": norm.unnormalize(observed[0]).cpu(),
+        "future": norm.unnormalize(item["future"].to(module.device)).cpu(),
+        "prediction": norm.unnormalize(pred).cpu(),
+    }
+
+
+def data_name(dm: MotionDataModule) -> str:
+    """The dataset's own name for titles: "synthetic" for the synthetic data, which reads as
+    H3.6M (its `dataset_name`, which picks the skeleton and the protocol) but is not."""
+    return "synthetic" if isinstance(dm, SyntheticDataModule) else dm.dataset_name
+
+
+def window_rows(
+    dm: MotionDataModule,
+    module,
+    index: int,
+    baseline: bool = True,
+    observed_shown: int = 25,
+    name: str | None = None,
+    dataset: str | None = None,
+) -> tuple[list[PoseRow], int, str]:
+    """(rows, n_observed, description) of evaluation window `index` (into `dm.eval_windows`)
+    for `frame_strip` / `animate`: the prediction of `module` (a MotionPredictor), the ground
+    truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
+    row is the last `observed_shown` observed frames followed by the future. The description
+    names `dataset` (default: the data's own name, see `data_name`)."""
+    frames = predict_window(dm, module, index)
+    obs = frames["observed"][-observed_shown:]
+    T = frames["future"].shape[0]
+    skeleton = Skeleton.load(module.dataset)
+    name = name or module.run_info.get("config", {}).get("model", {}).get("name")
+    name = name or type(module.net).__name__
+    rows = [
+        PoseRow(
+            f"prediction ({name})", positions(torch.cat([obs, frames["prediction"]]), skeleton)
+        ),
+        PoseRow("ground truth", positions(torch.cat([obs, frames["future"]]), skeleton), "green"),
+    ]
+    if baseline and not isinstance(module.net, ZeroVelocity):
+        # Zero-velocity repeats the last observed frame (protocol §7.1).
+        still = obs[-1:].expand(T, -1)
+        rows.append(PoseRow("zero-velocity", positions(torch.cat([obs, still]), skeleton), "blue"))
+    w = dm.eval_windows[index]
+    window = sum(v.action == w.action for v in dm.eval_windows[:index])  # among its action's
+    what = (
+        f"{name} on {dataset or data_name(dm)}: {w.action}, window {window} ({w.sequence}, "
+        f"start {w.start})"
+    )
+    return rows, len(obs), what
+
+
+# ---------------------------------------------------------------------------- drawing
 def _limits(motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) corners (3,) of one box holding every pose, so all panels share a scale."""
     pts = np.concatenate([m.reshape(-1, 3) for m in motions])
@@ -90,10 +161,6 @@ def _setup_axes(ax, box: tuple[np.ndarray, np.ndarray], elev: float, azim: float
     ax.set_proj_type("ortho")
     ax.view_init(elev=elev, azim=azim)
     ax.set_axis_off()
-
-
-def _colors(pair: tuple[str, str], sides: np.ndarray) -> list[str]:
-    return [pair[s] for s in sides]
 
 
 def _segments(pose: np.ndarray, bones: Sequence[tuple[int, int]]) -> np.ndarray:
