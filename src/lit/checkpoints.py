@@ -113,7 +113,7 @@ class LastCheckpoint(Checkpoint):
         self._saved_at = iteration
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        iteration = int(pl_module.iteration)
+        iteration = pl_module.host_iteration  # not `iteration`: on a GPU a read is a host sync
         if self._signal is not None:
             self.save(trainer, pl_module)
             raise TrainingInterrupted(self._signal, self.path, iteration)
