@@ -153,9 +153,9 @@ def bench_training(device, batches, repeats) -> tuple[dict, dict, dict]:
             with FlopCounterMode(display=False) as fc:
                 m.training_step(data[k], 0)
             flops[f"{k}@{B}"] = fc.get_total_flops()
-            # ... then as src.train runs it (compile.enabled=auto: compiled on CUDA), warmed
-            # up: compiling, and recording the CUDA graphs, take the first calls.
-            m.compile_step, m._compiled = "auto", None
+            # ... then as src.train runs it by default (compile.enabled=false: eager on every
+            # device; bench_compile times the compiled step), warmed up.
+            m.compile_step, m._compiled = False, None
             for _ in range(3):
                 m.training_step(data[k], 0)
             compiled[k] = m._objectives()[0]
@@ -168,7 +168,7 @@ def bench_training(device, batches, repeats) -> tuple[dict, dict, dict]:
 
 def bench_compile(device, B: int, repeats: int) -> dict:
     """it/s of the conv_s2s + adversarial step eager and compiled (compile.enabled=false/true),
-    interleaved: the measurement behind compile.enabled=auto's choice per device."""
+    interleaved: the measurement a choice of compile.enabled's default needs per device."""
     data = batch(B, device, True)
     mods = {flag: module("conv_adv", device) for flag in (False, True)}
     times: dict[bool, list[float]] = {}
@@ -187,7 +187,7 @@ def bench_compile(device, B: int, repeats: int) -> dict:
 
 def bench_compiled_prediction(device, repeats: int) -> dict:
     """Batch-1 latency of forward() eager and compiled as MotionForecaster(compile=True) runs
-    it (on CUDA, its default: one CUDA graph per shape), interleaved."""
+    it (on CUDA: one CUDA graph per shape), interleaved."""
     net = conv_net().to(device).eval()
     paths = {False: net, True: compile_for_prediction(net)}
     x1 = torch.randn(1, OBS, D, device=device)
@@ -398,7 +398,7 @@ def markdown(r: dict) -> str:
         ]
     compiled = r.get("train_compiled", {})
     lines.append(
-        "| training steps above compiled (`compile.enabled=auto`: on CUDA only) | "
+        "| training steps above compiled (`compile.enabled=false`, the default) | "
         + (
             "yes"
             if compiled and all(compiled.values())
@@ -420,8 +420,8 @@ def markdown(r: dict) -> str:
     if pred:
         lines += [
             f"| latency batch 1, forward() eager: median ms | {pred['eager_ms']:.1f} |",
-            "| latency batch 1, forward() compiled (MotionForecaster compile=true, the default "
-            f"on CUDA): median ms | {pred['compiled_ms']:.1f} |",
+            "| latency batch 1, forward() compiled (MotionForecaster compile=True): median ms | "
+            f"{pred['compiled_ms']:.1f} |",
             f"| compiled prediction: first 3 calls (compiling) s, max abs diff from eager | "
             f"{pred['warm_up_s']:.0f}, {pred['max_diff']:.1e} |",
         ]
@@ -507,13 +507,15 @@ NOTES = [
     "  copies and element-wise work (the share rows above).",
     "- The training step's optimisers are fused Adam, and the L2 terms of eq. (9) and of the",
     "  discriminator are added to the gradients in closed form (src/lit/predictor.py).",
-    "- `compile.enabled=auto` compiles the training step's two objectives on CUDA only (mode",
-    "  reduce-overhead: each one's forward and backward replayed as a CUDA graph); the eager",
-    "  and compiled rows above compare the two on this run's device.",
-    "- Compiled prediction (`MotionForecaster(compile=...)`, `compile_for_prediction` in",
+    "- `compile.enabled=true` compiles the training step's two objectives (mode",
+    "  reduce-overhead: on CUDA each one's forward and backward replayed as a CUDA graph); the",
+    "  eager and compiled rows above compare the two on this run's device. It is off by",
+    "  default on every device: on a GPU it has not been measured yet",
+    "  (`python benchmarks/gpu_check.py` does).",
+    "- Compiled prediction (`MotionForecaster(compile=True)`, `compile_for_prediction` in",
     "  src/inference.py) uses mode reduce-overhead on CUDA (a CUDA graph per shape) and the",
-    "  default mode on the CPU, where reduce-overhead measured slower; it is on by default on",
-    "  CUDA only, since each new shape compiles for tens of seconds.",
+    "  default mode on the CPU, where reduce-overhead measured slower; it is off by default,",
+    "  and each new shape compiles for tens of seconds.",
 ]
 
 

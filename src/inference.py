@@ -14,6 +14,7 @@ normalisation (protocol §2.1) and unnormalisation (§2.2) happen here, in raw F
 from __future__ import annotations
 
 import numbers
+import warnings
 from collections import deque
 from pathlib import Path
 
@@ -67,15 +68,23 @@ class _FixedHorizon(nn.Module):
         return self.net(observed, self.future_len, action=action)
 
 
+# A compiled forecaster compiles each new (batch size, future_len) again, tens of seconds; past
+# this many shapes it predicts new ones eagerly (one warning). Below torch's limit of graphs
+# per function (torch._dynamo.config.recompile_limit, 8), which with fullgraph was an error.
+COMPILED_SHAPES = 4
+
+
 def compile_for_prediction(net: nn.Module) -> nn.Module:
     """`net` compiled for eval-mode prediction on the device of its weights. On a GPU a
     batch-1 prediction is hundreds of tiny kernels, which mode "reduce-overhead" replays as
     one CUDA graph; on the CPU the default mode, which fuses the small ops (reduce-overhead
     is slower there: benchmarks/benchmark.py times both paths)."""
     cuda = next(net.parameters()).device.type == "cuda"
-    # dynamic=False: one static graph per shape, which is what CUDA graphs replay.
+    # dynamic=False: one static graph per shape, which is what CUDA graphs replay. No
+    # fullgraph: networks of one class share torch's graph limit (several forecasters in a
+    # process), and past it torch then runs the network eagerly instead of raising.
     mode = "reduce-overhead" if cuda else "default"
-    return torch.compile(net, mode=mode, fullgraph=True, dynamic=False)
+    return torch.compile(net, mode=mode, dynamic=False)
 
 
 class MotionForecaster:
@@ -88,18 +97,21 @@ class MotionForecaster:
         actions: list[str],
         observed_len: int = 50,
         device: str = "cpu",
-        compile: bool | str = "auto",
+        compile: bool | str = False,
     ):
         """compile: run the network through `compile_for_prediction` (True, False, or
-        "auto": on CUDA only). Each new (batch size, future_len) compiles once, tens of
-        seconds; on the CPU compiling has not been reliably faster, so it is off there unless
-        asked for."""
+        "auto": on CUDA only). Off by default: whether it pays has not been measured on a
+        GPU, and on the CPU it has not been reliably faster. Each new (batch size,
+        future_len) compiles once, tens of seconds; past COMPILED_SHAPES of them new shapes
+        run eagerly."""
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {compile!r}")
         self.device = _device(device)
         self.net = net.to(self.device).eval()
         self.compiled = compile is True or (compile == "auto" and self.device.type == "cuda")
         self._run = compile_for_prediction(self.net) if self.compiled else self.net
+        self._shapes: set[tuple[int, int]] = set()  # compiled (batch size, future_len)
+        self._warned = False
         self.normalizer = normalizer.to(self.device).eval()
         self.actions = list(actions)
         self.observed_len = observed_len
@@ -107,7 +119,7 @@ class MotionForecaster:
 
     @classmethod
     def from_checkpoint(
-        cls, path: str | Path, device: str = "cpu", compile: bool | str = "auto"
+        cls, path: str | Path, device: str = "cpu", compile: bool | str = False
     ) -> MotionForecaster:
         module = load_trained(path)
         observed_len = module.run_info["config"]["data"]["observed_len"]
@@ -154,6 +166,25 @@ class MotionForecaster:
         return torch.as_tensor(x, device=self.device)
 
     # ------------------------------------------------------------------ prediction
+    def _network(self, batch: int, future_len: int) -> nn.Module:
+        """The compiled network for a shape it compiled or may still compile, else the eager
+        one."""
+        shape = (batch, future_len)
+        if not self.compiled or shape in self._shapes:
+            return self._run
+        if len(self._shapes) < COMPILED_SHAPES:
+            self._shapes.add(shape)
+            return self._run
+        if not self._warned:
+            self._warned = True
+            warnings.warn(
+                f"MotionForecaster compiled {COMPILED_SHAPES} (batch size, future_len) shapes, "
+                f"{sorted(self._shapes)}; {shape} and any other new shape run eagerly. Predict "
+                "with fewer shapes (pad batches), or use compile=False.",
+                stacklevel=4,  # the caller of predict or push, under inference_mode
+            )
+        return self.net
+
     @torch.inference_mode()
     def predict(
         self, frames: np.ndarray, action: str | None = None, future_len: int = 25
@@ -169,7 +200,7 @@ class MotionForecaster:
                 f"got shape {tuple(np.shape(frames))}"
             )
         future_len = _check_future_len(future_len)
-        pred = self._run(
+        pred = self._network(x.shape[0], future_len)(
             self.normalizer.normalize(x), future_len, action=self._action_ids(action, x.shape[0])
         )
         out = self.normalizer.unnormalize(pred).cpu().numpy()
@@ -229,5 +260,5 @@ class ForecastStream:
         if len(self.buffer) < self.fc.observed_len:
             return None
         window = torch.stack(list(self.buffer), dim=1)  # (1, observed_len, D)
-        pred = self.fc._run(window, self.future_len, action=self.action)
+        pred = self.fc._network(1, self.future_len)(window, self.future_len, action=self.action)
         return self.fc.normalizer.unnormalize(pred)[0].cpu().numpy()

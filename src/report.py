@@ -81,8 +81,8 @@ EXPERIMENT_PUBLISHED: dict[str, dict | None] = {
 }
 
 # Config keys that do not make two runs different experiments: the seed, where files live,
-# the device, and how often files are written or progress printed (with torch.compile, the
-# settings src.lit.runs lets a resume change because they do not change what a run computes).
+# the device, how often files are written or progress printed, and torch.compile (whose
+# dropout draws other masks than eager, of the same distribution, like another seed).
 # A resumed run is the run it continues: `resume` and `ckpt_path` name where it came from.
 IGNORED_KEYS = (
     "seed",

@@ -69,3 +69,22 @@ def real_data_dir(archives, tmp_path_factory) -> Path:
     MOTION_DATA_DIR, when set, is reused so repeated local runs skip the unpacking."""
     reuse = os.environ.get("MOTION_DATA_DIR")
     return Path(reuse) if reuse else tmp_path_factory.mktemp("real_data")
+
+
+@pytest.fixture
+def dynamo_only(monkeypatch):
+    """torch.compile through Dynamo alone (backend "eager"): the graphs, guards and limits on
+    recompiling are torch's own, without inductor's code generation (a minute per model on
+    the CPU). Starts from a fresh compiler state: graphs of earlier tests count against the
+    same limits."""
+    import torch
+
+    compile_ = torch.compile
+
+    def compile_with_dynamo_only(fn, *, mode=None, **kwargs):
+        return compile_(fn, backend="eager", **kwargs)
+
+    torch.compiler.reset()
+    monkeypatch.setattr(torch, "compile", compile_with_dynamo_only)
+    yield
+    torch.compiler.reset()

@@ -99,18 +99,41 @@ def test_compiled_step_gives_the_eager_step_losses(name, device, train_cfg, monk
         assert apart <= 0.1 * trained, (key, apart, trained)
 
 
-def test_compile_is_on_by_default_on_cuda_only(train_cfg):
+@pytest.mark.slow  # nine fits, each tracing the step anew: about 10 s of CPU
+def test_a_sweep_of_nine_model_structures_compiles_in_one_process(train_cfg, dynamo_only):
+    """A sweep runs its jobs in one process (`python -m src.train -m ...`). Each structure is a
+    new graph of the same two objective functions, and torch refused a function's 9th graph
+    (recompile_limit 8, an error under fullgraph) until each fit started a fresh compiler
+    state."""
+    for nf in range(1, 10):  # 9 structures
+        cfg = train_cfg(
+            "model=conv_s2s",
+            "adversarial=none",
+            "model.net.long_term=false",
+            f"model.net.nf={nf}",
+            "model.net.d_z=8",
+            "+model.net.d_dec=8",
+            "data.future_len=1",
+        )
+        losses, _, _ = _fit(cfg, True, "cpu")
+        assert len(losses) == 3, nf
+
+
+def test_compile_is_off_by_default_and_auto_compiles_on_cuda_only(train_cfg):
+    """`python -m src.train` composes compile.enabled=false: eager on every device."""
     cfg = train_cfg("model=conv_s2s")
-    assert cfg.compile.enabled == "auto"
+    assert cfg.compile.enabled is False
     dm = build_datamodule(cfg.data)
     dm.prepare_data()
     dm.setup("fit")
-    module = build_module(cfg, dm)
-    assert module._objectives()[0] is False  # on the CPU
+    default, auto = build_module(cfg, dm), build_module(cfg, dm)
+    auto.compile_step = "auto"
+    assert default._objectives()[0] is False and auto._objectives()[0] is False  # on the CPU
     if torch.cuda.is_available():
-        module.to("cuda")
-        module._compiled = None
-        assert module._objectives()[0] is True
+        for module, compiled in ((default, False), (auto, True)):
+            module.to("cuda")
+            module._compiled = None
+            assert module._objectives()[0] is compiled
 
 
 def test_a_tensor_eta_of_one_gives_the_prediction_exactly(train_cfg):

@@ -5,16 +5,20 @@ tests load; the forecaster must rebuild the network without reading any data fil
 
 from __future__ import annotations
 
+import inspect
+import warnings
+
 import numpy as np
 import pytest
 import torch
 
 from src.data.normalization import Normalizer
 from src.data.synthetic import write_synthetic_h36m
-from src.inference import InferenceInputError, MotionForecaster
+from src.inference import COMPILED_SHAPES, InferenceInputError, MotionForecaster
 from src.lit.checkpoints import CheckpointError, read_checkpoint
 from src.lit.compose import compose_config
 from src.models.conv_s2s import ConvSeq2Seq
+from src.models.gru_s2s import GRUSeq2Seq
 from src.train import train
 
 F = 99  # H3.6M raw columns
@@ -172,11 +176,48 @@ def test_one_hot_model_requires_the_action():
     assert forecaster.predict(frames, action="eating").shape == (25, 99)
 
 
-def test_compile_is_on_by_default_only_on_cuda(ckpt_path):
-    assert not MotionForecaster.from_checkpoint(ckpt_path).compiled  # auto, CPU
+def test_compile_is_off_by_default(ckpt_path):
+    """On every device ("auto" would compile on CUDA): compiling is asked for, never implied."""
+    assert not MotionForecaster.from_checkpoint(ckpt_path).compiled
+    for make in (MotionForecaster, MotionForecaster.from_checkpoint):
+        assert inspect.signature(make).parameters["compile"].default is False
     assert MotionForecaster.from_checkpoint(ckpt_path, compile=True).compiled
     with pytest.raises(ValueError, match="compile must be true, false or auto"):
         MotionForecaster.from_checkpoint(ckpt_path, compile="yes")
+
+
+def test_a_compiled_forecaster_predicts_ten_shapes(ckpt_path, frames, dynamo_only):
+    """Each new (batch size, future_len) is a new graph of the network's forward, and torch
+    refused the 9th (recompile_limit 8, an error under fullgraph). Past COMPILED_SHAPES
+    shapes new ones run eagerly, with one warning; every shape predicts what eager does."""
+    eager = MotionForecaster.from_checkpoint(ckpt_path)
+    compiled = MotionForecaster.from_checkpoint(ckpt_path, compile=True)
+    shapes = [(b, t) for t in (1, 2, 3) for b in (1, 2, 3)] + [(4, 1)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for b, t in shapes:
+            x = frames[:b, :50]
+            out = compiled.predict(x, future_len=t)
+            np.testing.assert_allclose(out, eager.predict(x, future_len=t), rtol=1e-4, atol=1e-5)
+        assert compiled.stream(future_len=2).push(frames[0, 0]) is None  # a stream, too
+    (warned,) = [w for w in caught if "run eagerly" in str(w.message)]
+    assert f"compiled {COMPILED_SHAPES} (batch size, future_len) shapes" in str(warned.message)
+    assert warned.filename == __file__  # names the caller's line
+    assert len(compiled._shapes) == COMPILED_SHAPES
+
+
+def test_forecasters_of_several_structures_compile_in_one_process(dynamo_only):
+    """Networks of one class share torch's limit of graphs: three forecasters of 4 shapes each
+    are 12 graphs of GRUSeq2Seq.forward. Past the limit torch predicts eagerly."""
+    normalizer = Normalizer.from_frames(np.random.default_rng(0).normal(size=(100, F)))
+    frames = np.zeros((4, 50, F), dtype=np.float32)
+    for hidden in (4, 5, 6):
+        net = GRUSeq2Seq(pose_dim=normalizer.pose_dim, num_actions=1, hidden=hidden, one_hot=False)
+        compiled = MotionForecaster(net, normalizer, ["walking"], compile=True)
+        eager = MotionForecaster(net, normalizer, ["walking"])
+        for b in range(1, COMPILED_SHAPES + 1):
+            out = compiled.predict(frames[:b], future_len=2)
+            np.testing.assert_allclose(out, eager.predict(frames[:b], future_len=2), atol=1e-6)
 
 
 DEVICES = [

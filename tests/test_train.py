@@ -59,6 +59,7 @@ def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
         accelerator="cpu",
         use_distributed_sampler=False,
         enable_progress_bar=False,
+        log_every_n_steps=2,
     )
     dm.steps_per_epoch = 2
     trainer.fit(module, datamodule=dm)
@@ -73,6 +74,9 @@ def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
     expected += module.lambda_adv * seen["train/loss_adv"]
     assert seen["train/loss_g"] == pytest.approx(expected, rel=1e-5)
     assert seen["train/loss_adv"] > 0 and "train/loss_d" in seen
+    # The progress bar's loss, a host number refreshed on the iterations whose losses are logged.
+    bar = trainer.progress_bar_metrics["train/loss_recon_bar"]
+    assert bar == pytest.approx(seen["train/loss_recon"])
 
 
 def _gradients_of_one_step(module, batch, lambda_2, lambda_2_d):

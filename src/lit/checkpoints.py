@@ -113,7 +113,7 @@ class LastCheckpoint(Checkpoint):
         return int(signum) or None
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        iteration = int(pl_module.iteration)
+        iteration = pl_module.host_iteration  # not `iteration`: on a GPU a read is a host sync
         signum = self._stop_signal(trainer, pl_module)
         if signum is not None:
             self.save(trainer, pl_module)

@@ -146,7 +146,7 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
         reference_fake_slot=adv.get("reference_fake_slot", False),
         dim_rule=cfg.metrics.dim_rule,
         run_info=run_info,
-        compile=cfg.get("compile", {}).get("enabled", "auto"),
+        compile=cfg.get("compile", {}).get("enabled", False),
         compile_mode=cfg.get("compile", {}).get("mode", "reduce-overhead"),
     )
 

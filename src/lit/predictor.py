@@ -88,7 +88,7 @@ class MotionPredictor(L.LightningModule):
         reference_fake_slot: bool = False,
         dim_rule: str = "future",
         run_info: dict[str, Any] | None = None,
-        compile: bool | str = "auto",
+        compile: bool | str = False,
         compile_mode: str = "reduce-overhead",
     ):
         super().__init__()
@@ -115,11 +115,12 @@ class MotionPredictor(L.LightningModule):
         self.lambda_2_d = lambda_2_d
         self.reference_fake_slot = reference_fake_slot
         self.run_info = run_info or {}
-        # torch.compile the two objectives of a training iteration: "auto" on a CUDA device.
+        # torch.compile the two objectives of a training iteration (True; "auto": on a CUDA
+        # device only); off by default, see conf/train.yaml.
         self.compile_step, self.compile_mode = compile, compile_mode
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
-        self._host_iteration: int | None = None  # self.iteration on the host, see _eta
+        self._host_iteration: int | None = None  # see host_iteration
         # Training iterations done, saved in the state dict so eta and logging resume exactly.
         self.register_buffer("iteration", torch.zeros((), dtype=torch.long))
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
@@ -171,16 +172,22 @@ class MotionPredictor(L.LightningModule):
                 "is added to unscaled; use trainer.precision=32 (default) or bf16-mixed"
             )
 
+    @property
+    def host_iteration(self) -> int:
+        """`iteration` as a Python int: read from the device once per fit (on a GPU each read
+        is a host sync, a stall of the launch queue), then counted on the host."""
+        if self._host_iteration is None:
+            self._host_iteration = int(self.iteration)
+        return self._host_iteration
+
     def _eta(self) -> float:
         if self.eta_schedule is None:
             return 1.0
-        if self._host_iteration is None:  # once per fit: on a GPU each read is a sync
-            self._host_iteration = int(self.iteration)
-        eta = float(self.eta_schedule(self._host_iteration))
+        eta = float(self.eta_schedule(self.host_iteration))
         if not 0.0 <= eta <= 1.0:  # checked here: the compiled step's tensor eta is not read
             raise ValueError(
                 f"the eta schedule gave {eta} at iteration "
-                f"{self._host_iteration}; eta must lie in [0, 1]"
+                f"{self.host_iteration}; eta must lie in [0, 1]"
             )
         return eta
 
@@ -240,6 +247,10 @@ class MotionPredictor(L.LightningModule):
             )
             d, g = self._d_objective, self._g_objective
             if on:
+                # A fresh compiler state per fit: torch keeps the graphs of every earlier fit
+                # in the process under the same two functions and, with fullgraph, refuses
+                # their 9th (recompile_limit): a sweep of model structures would stop there.
+                torch.compiler.reset()
                 # Static shapes and one graph per objective: reduce-overhead captures each
                 # (forward and backward) in a CUDA graph, so a step is a few graph launches
                 # instead of thousands of kernels (the GPU step was launch-bound).
@@ -270,6 +281,7 @@ class MotionPredictor(L.LightningModule):
         schedulers = self.lr_schedulers()
         schedulers = schedulers if isinstance(schedulers, list) else [schedulers]
         logs: dict[str, Tensor] = {"train/eta": _host(eta)}
+        d_losses: dict[str, Tensor] = {}
 
         if self.adversarial:
             # The discriminator and generator see different random batches (protocol §6.6);
@@ -283,7 +295,7 @@ class MotionPredictor(L.LightningModule):
             self.toggle_optimizer(opt_d)
             loss_d_adv, d_real = d_objective(obs_d, fut_d, act_d, eta_in)
             loss_d = loss_d_adv.detach() + self.lambda_2_d * l2_penalty(self.discriminator)
-            self._check_finite(loss_d=loss_d)
+            d_losses["loss_d"] = loss_d
             opt_d.zero_grad()
             self.manual_backward(loss_d_adv)
             add_l2_gradient_(self.discriminator, self.lambda_2_d)
@@ -301,7 +313,10 @@ class MotionPredictor(L.LightningModule):
         loss_recon = loss_recon.clone()
         loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else loss_recon.new_zeros(())
         loss_g = loss_backprop.detach() + self.lambda_2 * loss_l2
-        self._check_finite(loss_g=loss_g, loss_recon=loss_recon)
+        # Once per iteration, before the generator's step: a check is a host sync. A
+        # non-finite loss_d has then moved the discriminator already, but nothing is saved
+        # after this error (the last good last.ckpt stays) and it names loss_d alone.
+        self._check_finite(d_losses, {"loss_g": loss_g, "loss_recon": loss_recon})
         opt_g.zero_grad()
         self.manual_backward(loss_backprop)
         if self.lambda_2 > 0:
@@ -316,9 +331,8 @@ class MotionPredictor(L.LightningModule):
             logs["train/loss_adv"] = loss_adv.clone()
         for sch in schedulers:
             sch.step()
+        self._host_iteration = self.host_iteration + 1
         self.iteration += 1
-        if self._host_iteration is not None:
-            self._host_iteration += 1
 
         logs.update(
             {
@@ -331,23 +345,31 @@ class MotionPredictor(L.LightningModule):
         if self.adversarial:
             logs["train/lr_d"] = _host(optimizers[1].param_groups[0]["lr"])
         self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
-        self.log("train/loss_recon_bar", loss_recon, prog_bar=True, logger=False)
+        # Lightning reads the progress bar's numbers at every batch, a host sync each on a GPU:
+        # a host number, refreshed on the iterations whose losses are logged (read then anyway).
+        every = self._trainer.log_every_n_steps if self._trainer is not None else 0
+        if every and self.host_iteration % every == 0:
+            self.log("train/loss_recon_bar", _host(loss_recon.item()), prog_bar=True, logger=False)
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
 
     def _recent(self) -> list[dict[str, float]]:
         return [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
 
-    def _check_finite(self, **losses: Tensor) -> None:
+    def _check_finite(self, *objectives: dict[str, Tensor]) -> None:
+        """Stop on a non-finite loss, naming those of the first objective that has one (the
+        discriminator's makes the generator's non-finite too)."""
         # One host sync for all losses (each is a stall of the launch queue on a GPU).
-        if bool(torch.isfinite(torch.stack([v.detach() for v in losses.values()])).all()):
+        losses = [v.detach() for objective in objectives for v in objective.values()]
+        if bool(torch.isfinite(torch.stack(losses)).all()):
             return
-        bad = {k: v.item() for k, v in losses.items() if not torch.isfinite(v)}
-        if bad:
-            raise NonFiniteLossError(
-                f"non-finite loss at training iteration {int(self.iteration)}: {bad}. "
-                f"Last finite losses (oldest first): {self._recent() or 'none yet'}. "
-                f"{self._last_checkpoint_note()} Lower the learning rate or check the data."
-            )
+        for objective in objectives:
+            bad = {k: v.item() for k, v in objective.items() if not torch.isfinite(v)}
+            if bad:
+                raise NonFiniteLossError(
+                    f"non-finite loss at training iteration {self.host_iteration}: {bad}. "
+                    f"Last finite losses (oldest first): {self._recent() or 'none yet'}. "
+                    f"{self._last_checkpoint_note()} Lower the learning rate or check the data."
+                )
 
     # ---------------------------------------------------------------- evaluation
     def forward(self, observed: Tensor, future_len: int, action: Tensor | None = None) -> Tensor:

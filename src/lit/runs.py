@@ -40,7 +40,8 @@ FROM_HERE = (
     "data.archive",
 )
 # Restored from the run, but the command line may change them: they do not change what the
-# run computes (the Trainer's device settings are the user's to adapt to the machine).
+# run computes (the Trainer's device settings are the user's to adapt to the machine). Not
+# `compile`: compiled dropout draws other masks than eager, so the resume would not be exact.
 FREE = (
     "iterations",
     "run_name",
@@ -49,7 +50,6 @@ FREE = (
     "media_every",
     "progress_every_s",
     "trainer",
-    "compile",
     "data.num_workers",
 )
 # ... except these, which change the numbers (bf16-mixed autocast): a resume keeps the run's.
