@@ -21,6 +21,7 @@ import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
+from src.cli import hydra_entry
 from src.lit.checkpoints import module_from_checkpoint, read_checkpoint
 from src.lit.factory import (
     ConfigError,
@@ -30,7 +31,7 @@ from src.lit.factory import (
     register_resolvers,
 )
 from src.lit.runs import nothing_left_if_refused
-from src.lit.validation import hydra_entry, validate_eval_config
+from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
 

@@ -27,6 +27,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
+from src.cli import hydra_entry
 from src.lit.checkpoints import (
     BestCheckpoint,
     LastCheckpoint,
@@ -47,7 +48,7 @@ from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
 from src.lit.runs import check_schedule, describe, nothing_left_if_refused, restore_run
-from src.lit.validation import hydra_entry, validate_train_config
+from src.lit.validation import validate_train_config
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)

@@ -27,13 +27,14 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from src.cli import hydra_entry
 from src.data.base import MotionDataModule
 from src.data.synthetic import SyntheticDataModule
 from src.eval import load_for_eval
 from src.lit.factory import ConfigError, register_resolvers
 from src.lit.predictor import MotionPredictor
 from src.lit.runs import nothing_left_if_refused
-from src.lit.validation import check_number_types, hydra_entry, validate_eval_config
+from src.lit.validation import check_number_types, validate_eval_config
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.models.baselines import ZeroVelocity
 from src.reporting.plots import PoseRow, animate, frame_strip

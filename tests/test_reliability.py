@@ -11,12 +11,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.cli import friendly_errors
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
-from src.lit.validation import friendly_errors, validate_train_config
+from src.lit.validation import validate_train_config
 from tests.conftest import compose_config, run_module
 from tests.test_resume import TINY
 

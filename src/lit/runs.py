@@ -24,9 +24,14 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from src.data.errors import DataError
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
 from src.lit.factory import ConfigError
-from src.lit.validation import USER_ERRORS
+from src.lit.predictor import NonFiniteLossError
+
+# The project's errors for a user's mistake (bad data, config, checkpoint, a diverged run): a
+# refused run leaves nothing behind, and the command line prints them as one line (src/cli.py).
+USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
 
 # Where files live on this machine: always taken from this command, never from the resumed run.
 FROM_HERE = (
