@@ -123,7 +123,7 @@ def describe_hydra_error(err: Exception, config_name: str, overrides: list[str])
         group = os.path.dirname(err.missing_cfg_file or "") or "?"
         wanted = os.path.basename(err.missing_cfg_file or "")
         close = difflib.get_close_matches(wanted, err.options, n=3, cutoff=0.5)
-        hint = f" Did you mean {group}={' or '.join(close)}?" if close else ""
+        hint = f" Did you mean {' or '.join(f'{group}={c}' for c in close)}?" if close else ""
         return (
             f"{group}={wanted}: no such option of {config_name}.{hint} Choose one of: "
             f"{', '.join(sorted(err.options))}."
