@@ -34,14 +34,14 @@ from src.eval import load_for_eval
 from src.lit.factory import ConfigError, register_resolvers
 from src.lit.predictor import MotionPredictor
 from src.lit.runs import nothing_left_if_refused
-from src.lit.validation import check_number_types, validate_eval_config
+from src.lit.schema import VisualizeConfig
+from src.lit.validation import validate_eval_config
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.models.baselines import ZeroVelocity
 from src.reporting.plots import PoseRow, animate, frame_strip
 
 log = logging.getLogger(__name__)
 register_resolvers()
-FORMATS = ("gif", "mp4")
 
 
 def select_window(dm: MotionDataModule, action: str, window: int) -> int:
@@ -144,24 +144,20 @@ def _writer(fmt: str, fps: float):
 
 
 def _check_settings(cfg: DictConfig) -> None:
-    """Hydra passes values as typed: a word would fail deep in the drawing with a traceback,
-    int() would show window 1 for window=1.5, and any non-empty word would read as true."""
-    check_number_types(cfg, ("window", "observed_shown", "strip_step"), optional=False)
-    # window's range depends on the action: select_window names it.
+    """The types first (src/lit/schema.py's VisualizeConfig): a word would fail deep in the
+    drawing with a traceback, int() would show window 1 for window=1.5, and any non-empty word
+    would read as true. Then the ranges; window's depends on the action: select_window names
+    it."""
+    validate_eval_config(cfg, VisualizeConfig)
     for key in ("observed_shown", "strip_step"):
         if cfg[key] < 1:
             raise ConfigError(f"{key}={cfg[key]} must be >= 1")
-    if not isinstance(cfg.baseline, bool):
-        raise ConfigError(f"baseline={cfg.baseline!r} must be true or false")
 
 
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
     matplotlib.use("Agg")
-    if cfg.format not in FORMATS:
-        raise ConfigError(f"format={cfg.format!r}: choose one of {', '.join(FORMATS)}")
     _check_settings(cfg)
-    validate_eval_config(cfg)
     dm, module, model_cfg, dataset = load_for_eval(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)
     rows, n_obs, what = window_rows(

@@ -5,31 +5,32 @@ ranges, and what the machine can run."""
 from __future__ import annotations
 
 import difflib
-import inspect
+import typing
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.base import EVAL_PROTOCOLS
 from src.lit.factory import ConfigError
+from src.lit.schema import (
+    INSTANTIATE_KEYS,
+    Data,
+    EvalConfig,
+    TrainConfig,
+    check_types,
+    constructor_types,
+)
 
-# Keys of an instantiated node that are not constructor arguments: Hydra's own, and the
-# dataset name (src.lit.factory.build_datamodule drops it).
-_INSTANTIATE_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
-_NOT_PASSED = {"data": {"name"}}
+# Keys of a data node that are not data module arguments (the dataset's name).
+_NOT_PASSED = {"data": set(typing.get_type_hints(Data))}
 
 
 def constructor_args(node: dict) -> list[str]:
     """Keyword arguments of the class a config node instantiates ([] if none or unknown)."""
     target = node.get("_target_") if isinstance(node, dict) else None
-    if not isinstance(target, str):
+    if not isinstance(target, str) or not _importable(node):
         return []
-    try:
-        params = inspect.signature(hydra.utils.get_class(target)).parameters
-    except Exception:  # noqa: BLE001 (an unknown target is reported where it is built)
-        return []
-    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-    return [name for name, p in params.items() if p.kind in kinds]
+    return list(constructor_types(hydra.utils.get_class(target)) or [])
 
 
 def check_constructor_keys(cfg: DictConfig) -> None:
@@ -38,11 +39,12 @@ def check_constructor_keys(cfg: DictConfig) -> None:
     cannot check, which would otherwise fail deep inside the constructor with a TypeError."""
     plain = OmegaConf.to_container(cfg, resolve=False)
     for path, node in _instantiated_nodes(plain):
-        target = hydra.utils.get_class(node["_target_"]) if _importable(node) else None
-        if target is None or _takes_any_keyword(target):
-            continue
+        if not _importable(node):
+            continue  # reported where it is built
+        if constructor_types(hydra.utils.get_class(node["_target_"])) is None:
+            continue  # **kwargs all the way: any key is taken
         args = set(constructor_args(node))
-        allowed = args | _INSTANTIATE_KEYS | _NOT_PASSED.get(path, set())
+        allowed = args | INSTANTIATE_KEYS | _NOT_PASSED.get(path, set())
         for key in node:
             if key not in allowed:
                 close = difflib.get_close_matches(str(key), sorted(args), n=3, cutoff=0.6)
@@ -62,14 +64,6 @@ def _importable(node: dict) -> bool:
         return True
     except Exception:  # noqa: BLE001 (reported where it is built)
         return False
-
-
-def _takes_any_keyword(cls) -> bool:
-    try:
-        params = inspect.signature(cls).parameters.values()
-    except (TypeError, ValueError):
-        return True
-    return any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params)
 
 
 def _instantiated_nodes(tree: dict, path: str = ""):
@@ -103,61 +97,11 @@ def _require(ok: bool, message: str) -> None:
         raise ConfigError(message)
 
 
-# The numbers training reads, which Hydra takes as given: a word (iterations=abc) would fail
-# inside a comparison below with a traceback, and int() would truncate iterations=1.5 to 1.
-_WHOLE_NUMBERS = (
-    "iterations",
-    "val_every",
-    "seed",
-    "checkpoint_every",
-    "media_every",
-    "data.batch_size",
-    "data.future_len",
-    "data.observed_len",
-    "model.net.C",
-    "model.lr_decay_every",
-    "sampling.steps",
-)
-_NUMBERS = (
-    "progress_every_s",
-    "model.optimizer.lr",
-    "model.lambda_2",
-    "model.lr_decay_gamma",
-    "model.grad_clip_norm",
-    "adversarial.optimizer.lr",
-    "adversarial.lambda_adv",
-    "adversarial.lambda_2",
-    "sampling.eta",
-    "sampling.start",
-    "sampling.end",
-    "sampling.k",
-)
-
-
-def check_number_types(
-    cfg: DictConfig,
-    whole_numbers: tuple[str, ...],
-    numbers: tuple[str, ...] = (),
-    optional: bool = True,
-) -> None:
-    """Each of these keys holds a whole number, or a number (ConfigError if not); with
-    `optional`, a key that is unset or null is let through."""
-    for key in whole_numbers + numbers:
-        value = OmegaConf.select(cfg, key, default=None)
-        if value is None and optional:
-            continue
-        whole = isinstance(value, int) and not isinstance(value, bool)
-        if key in whole_numbers:
-            _require(whole, f"{key}={value!r} must be a whole number.")
-        else:
-            _require(whole or isinstance(value, float), f"{key}={value!r} must be a number.")
-
-
 def validate_train_config(cfg: DictConfig) -> None:
     """Out-of-range values are rejected here, naming the allowed range."""
     check_trainable(cfg)  # first: a baseline's config lacks what the checks below read
     check_constructor_keys(cfg)
-    check_number_types(cfg, _WHOLE_NUMBERS, _NUMBERS)
+    check_types(cfg, TrainConfig)  # then the comparisons below compare numbers
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
     seed = cfg.get("seed")
     if seed is not None:  # Lightning's seed_everything would raise numpy's range error
@@ -166,11 +110,6 @@ def validate_train_config(cfg: DictConfig) -> None:
     if every is not None:
         # A negative period divides every iteration: last.ckpt would be written at each one.
         _require(every >= 0, f"checkpoint_every={every} must be >= 0 iterations (0: off).")
-    compile_on = cfg.get("compile", {}).get("enabled", "auto")
-    _require(
-        compile_on in (True, False, "auto"),
-        f"compile.enabled={compile_on!r}: use true, false or auto (on a CUDA device).",
-    )
     _require(cfg.val_every > 0, f"val_every={cfg.val_every} must be a positive integer.")
     _require(cfg.data.batch_size > 0, f"data.batch_size={cfg.data.batch_size} must be > 0.")
     _require(cfg.data.future_len >= 1, f"data.future_len={cfg.data.future_len} must be >= 1 frame.")
@@ -215,19 +154,15 @@ def validate_train_config(cfg: DictConfig) -> None:
     if sampling.get("k") is not None:
         _require(sampling.k >= 1, f"sampling.k={sampling.k} must be >= 1.")
     _check_protocol("data.eval_protocol", cfg.data.get("eval_protocol"))
-    _check_dim_rule(cfg)
 
 
-def validate_eval_config(cfg: DictConfig) -> None:
-    """The evaluation settings that do not come from a checkpoint."""
+def validate_eval_config(cfg: DictConfig, schema: type = EvalConfig) -> None:
+    """The evaluation settings that do not come from a checkpoint (src.visualize's, with its
+    own `schema`)."""
     check_constructor_keys(cfg)
-    _check_dim_rule(cfg)
-    _check_protocol("protocol", cfg.get("protocol"))
-
-
-def _check_dim_rule(cfg: DictConfig) -> None:
-    rule = cfg.metrics.dim_rule
-    _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
+    check_types(cfg, schema)
+    if cfg.get("data") is not None:
+        _check_protocol("data.eval_protocol", cfg.data.get("eval_protocol"))
 
 
 def _check_protocol(key: str, protocol: str | None) -> None:
