@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import difflib
 import functools
+import logging
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import hydra
@@ -66,6 +68,25 @@ def check_installation(conf_dir: Path | None = None) -> None:
         )
 
 
+class _NoTips(logging.Filter):
+    """Lightning's advertisements for its cloud products ("💡 Tip: ... try installing
+    litlogger"), printed by every Trainer: nothing a run can act on."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("💡 Tip")
+
+
+def silence_false_warnings() -> None:
+    """Leave out what the libraries print that is false or idle for this project, each message
+    by its own text, so that the warnings that remain are true ones."""
+    # Lightning 2.6 builds torch's deprecated LeafSpec itself; nothing a user can change.
+    leaf_spec = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
+    warnings.filterwarnings("ignore", message=leaf_spec, category=FutureWarning)
+    tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+    if not any(isinstance(f, _NoTips) for f in tips.filters):
+        tips.addFilter(_NoTips())
+
+
 def hydra_entry(config_name: str):
     """`@hydra.main` for `conf/<config_name>.yaml` with the project's one-line errors.
 
@@ -82,6 +103,7 @@ def hydra_entry(config_name: str):
         def entry(cfg_passthrough: DictConfig | None = None):
             if cfg_passthrough is not None:
                 return task(cfg_passthrough)
+            silence_false_warnings()
             try:
                 check_installation()
             except ConfigError as err:

@@ -17,7 +17,6 @@ import logging
 import time
 from pathlib import Path
 
-import hydra
 import lightning as L
 from omegaconf import DictConfig, OmegaConf
 
@@ -27,6 +26,7 @@ from src.lit.factory import (
     ConfigError,
     build_datamodule,
     build_module,
+    build_trainer,
     git_commit,
     register_resolvers,
 )
@@ -119,7 +119,7 @@ def evaluate(cfg: DictConfig) -> dict:
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
     dm, module, model_cfg, dataset = load_for_eval(cfg)
-    trainer: L.Trainer = hydra.utils.instantiate(
+    trainer: L.Trainer = build_trainer(
         cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
     )
     trainer.test(module, datamodule=dm, verbose=False)

@@ -5,11 +5,12 @@ rows of the issue's table, one section each."""
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import pytest
 
 from src.lit.factory import ConfigError
-from tests.conftest import CONF
+from tests.conftest import CONF, run_module
 
 
 def _groups() -> list[str]:
@@ -250,3 +251,226 @@ def test_every_key_of_every_shipped_config_has_a_declared_type(tmp_path):
         cfg = compose_config(config_name, overrides, tmp_path)
         check_constructor_keys(cfg)
         check_types(cfg, SCHEMAS[config_name])
+
+
+# ---------------------------------------------------- row 5: a GPU where there is none
+def test_row_5_a_gpu_asked_for_where_there_is_none_is_one_line(train_cfg, monkeypatch):
+    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
+
+    from src.lit.validation import validate_train_config
+
+    for kind in (CUDAAccelerator, MPSAccelerator):  # this machine, whatever it has
+        monkeypatch.setattr(kind, "is_available", staticmethod(lambda: False))
+    for overrides in (["trainer=gpu"], ["trainer.accelerator=cuda"]):
+        with pytest.raises(ConfigError) as err:
+            validate_train_config(train_cfg(*overrides))
+        message = str(err.value)
+        assert "asks for a GPU" in message and "finds none" in message
+        assert "trainer=cpu" in message and "\n" not in message
+
+
+@pytest.mark.skipif(
+    __import__("torch").cuda.is_available(), reason="this machine has a GPU: trainer=gpu works"
+)
+def test_row_5_cli_trainer_gpu_without_a_gpu_is_one_line(tmp_path, synthetic_data_dir):
+    """It used to be a 79-line traceback ending in "No supported gpu backend found!"."""
+    proc = run_module("src.train", "trainer=gpu", "data=synthetic", data_dir=synthetic_data_dir,
+                      log_dir=tmp_path)  # fmt: skip
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error: ")]
+    assert line.startswith("error: trainer.accelerator=gpu asks for a GPU")
+    assert "trainer=cpu" in line
+    assert not tmp_path.exists() or not list(tmp_path.rglob("*"))
+
+
+def test_row_5_a_trainer_setting_lightning_refuses_is_a_config_error(train_cfg):
+    from src.lit.factory import build_trainer
+
+    with pytest.raises(ConfigError, match=r"Trainer: `Trainer\(devices=0\)` value is not a valid"):
+        build_trainer(train_cfg("trainer.devices=0").trainer)
+
+
+# ---------------------------------------------------- rows 6 and 8: resumes
+def _fake_run(folder: Path, data_dir: Path, *overrides: str) -> Path:
+    """A run folder as training leaves it (config.yaml, checkpoints/last.ckpt), without
+    training: the resume logic reads only these files."""
+    from omegaconf import OmegaConf
+
+    from tests.conftest import compose_config
+
+    cfg = compose_config("train", list(overrides), folder, data_dir)
+    task = OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"])
+    folder.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(task, folder / "config.yaml", resolve=True)
+    (folder / "checkpoints").mkdir()
+    (folder / "checkpoints" / "last.ckpt").write_bytes(b"")
+    return folder
+
+
+RUN = ["data=synthetic", "model=gru_s2s", "model.net.hidden=16", "iterations=6", "val_every=2"]
+
+
+@pytest.mark.parametrize("layout", ["runs/gru_s2s_synthetic/2026-01-01_00-00-00",
+                                    "multiruns/2026-01-01_00-00-00/0_model-gru_s2s"])  # fmt: skip
+def test_row_6_a_resumed_run_goes_under_the_outputs_folder_of_its_run(
+    layout, tmp_path, synthetic_data_dir
+):
+    """A run started with paths.log_dir=/elsewhere used to resume into ./outputs/..."""
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    from src.lit.runs import restore_run
+    from tests.conftest import compose_config
+
+    elsewhere = tmp_path / "elsewhere"
+    run = _fake_run(elsewhere / "train" / layout, synthetic_data_dir, *RUN)
+    cfg = compose_config("train", [f"resume={run}"], tmp_path / "here", synthetic_data_dir)
+    choices = OmegaConf.to_container(HydraConfig.get().runtime.choices)
+    # The command line as typed: no paths.log_dir (compose_config adds one of its own).
+    restored, _ = restore_run(cfg, [f"resume={run}"], choices)
+    assert restored.paths.log_dir == str(elsewhere)
+    run_dir = OmegaConf.to_container(cfg.hydra.run, resolve=False)["dir"]
+    assert run_dir.startswith("${paths.log_dir}/${task_name}/runs/${run_name}/")  # so, beside it
+    # A log_dir given on the command line is still the user's choice.
+    restored, _ = restore_run(cfg, [f"resume={run}", f"paths.log_dir={tmp_path / 'here'}"],
+                              choices)  # fmt: skip
+    assert restored.paths.log_dir == str(tmp_path / "here")
+
+
+def test_row_8_a_refused_resume_says_which_keys_may_change(tmp_path, synthetic_data_dir):
+    """+trainer.precision=bf16-mixed was refused with a message saying trainer keys may change."""
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import OmegaConf
+
+    from src.lit.checkpoints import CheckpointError
+    from src.lit.runs import restore_run
+    from tests.conftest import compose_config
+
+    run = _fake_run(tmp_path / "run", synthetic_data_dir, *RUN)
+    overrides = [f"resume={run}", "+trainer.precision=bf16-mixed"]
+    cfg = compose_config("train", overrides, tmp_path / "new", synthetic_data_dir)
+    choices = OmegaConf.to_container(HydraConfig.get().runtime.choices)
+    with pytest.raises(CheckpointError) as err:
+        restore_run(cfg, overrides, choices)
+    message = str(err.value)
+    assert "trainer.precision: checkpoint absent, command line bf16-mixed" in message
+    allowed = message.split("only these may differ: ")[1]
+    assert "trainer.* except trainer.precision" in allowed and "iterations" in allowed
+    assert "trainer keys may change" not in message
+
+
+# ------------------------------------- rows 7 and 11: what a run prints (6: where it resumes)
+FALSE_WARNINGS = (
+    "dataloader is not resumable",  # the training sampler resumes exactly
+    "dirpath has changed",  # a resume writes into a new folder by design
+    "weights_only",  # Lightning's note when the argument is left to its default
+    "LeafSpec",  # a deprecation inside Lightning
+    "litlogger",  # an advertisement
+    "Tip:",
+)
+
+DIE_AFTER_SAVE = """
+import os
+
+from src.lit.checkpoints import LastCheckpoint
+
+_save = LastCheckpoint.save
+
+
+def _save_then_die(self, trainer, pl_module):
+    _save(self, trainer, pl_module)
+    if int(pl_module.iteration) == int(os.environ["DIE_AFTER"]):
+        os._exit(137)
+
+
+LastCheckpoint.save = _save_then_die
+"""
+
+
+def _printed(proc) -> str:
+    return proc.stdout + proc.stderr
+
+
+def test_row_7_evaluation_prints_no_false_warnings(tmp_path, synthetic_data_dir):
+    proc = run_module("src.eval", "model=zero_velocity", "data=synthetic", "trainer=cpu",
+                      data_dir=synthetic_data_dir, log_dir=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    for text in FALSE_WARNINGS:
+        assert text not in _printed(proc), text
+
+
+def test_row_7_only_the_false_warnings_are_silenced():
+    import logging
+    import warnings
+
+    from lightning.pytorch.utilities.rank_zero import rank_zero_warn
+
+    from src.cli import silence_false_warnings
+
+    silence_false_warnings()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        silence_false_warnings()  # after simplefilter: its filters come first
+        rank_zero_warn("a real warning: the data has only 3 windows")
+        warnings.warn("`isinstance(treespec, LeafSpec)` is deprecated", FutureWarning, stacklevel=1)
+    assert [str(w.message) for w in caught] == ["a real warning: the data has only 3 windows"]
+    tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
+    assert not tips.filter(logging.makeLogRecord({"msg": "💡 Tip: try installing litlogger"}))
+    assert tips.filter(logging.makeLogRecord({"msg": "GPU available: False, used: False"}))
+
+
+def test_row_7_best_checkpoint_carries_over_without_lightnings_dirpath_warning(tmp_path):
+    import warnings
+
+    from src.lit.checkpoints import BestCheckpoint
+
+    before = BestCheckpoint(tmp_path / "a" / "checkpoints")
+    best = str(tmp_path / "a" / "checkpoints" / "best-epoch001.ckpt")
+    state = {**before.state_dict(), "best_model_score": 0.5, "best_model_path": best}
+    after = BestCheckpoint(tmp_path / "b" / "checkpoints")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        after.load_state_dict(state)
+    assert after.best_model_path == state["best_model_path"]
+    assert float(after.best_model_score) == 0.5
+
+
+@pytest.mark.slow
+def test_rows_6_7_11_a_killed_and_resumed_run_prints_the_truth(tmp_path, synthetic_data_dir):
+    """A run killed mid-epoch (right after last.ckpt at iteration 1), then resumed by its
+    folder alone: no false warning in either, the resumed run beside the killed one although
+    the resume names no paths.log_dir, and the best checkpoint printed at the end."""
+    import os
+    import subprocess
+
+    from tests.conftest import ROOT
+
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(DIE_AFTER_SAVE)
+    env = {**os.environ, "MOTION_DATA_DIR": str(synthetic_data_dir), "OMP_NUM_THREADS": "1"}
+    elsewhere = tmp_path / "elsewhere"
+    gru = [*RUN[:3], "trainer=cpu", "trainer.enable_progress_bar=false", "media_every=0",
+           "iterations=4", "val_every=2"]  # fmt: skip
+
+    def train(*args: str, **extra: str):
+        cmd = [sys.executable, "-m", "src.train", *args]
+        return subprocess.run(
+            cmd, cwd=ROOT, env={**env, **extra}, capture_output=True, text=True, timeout=600
+        )
+
+    path = os.pathsep.join([str(hook), str(ROOT)])
+    killed = train(*gru, "checkpoint_every=1", f"paths.log_dir={elsewhere}",
+                   PYTHONPATH=path, DIE_AFTER="1")  # fmt: skip
+    assert killed.returncode == 137, killed.stderr[-3000:]
+    (run,) = (elsewhere / "train" / "runs").glob("*/*")
+    resumed = train(f"resume={run}")
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    for proc in (killed, resumed):
+        for text in FALSE_WARNINGS:
+            assert text not in _printed(proc), (text, _printed(proc)[-3000:])
+    (new,) = [r for r in (elsewhere / "train" / "runs").glob("*/*") if r != run]
+    assert new.parent == run.parent  # row 6: beside the run, not under ./outputs
+    (best,) = [x for x in resumed.stdout.splitlines() if "best checkpoint: " in x]
+    best = Path(best.split("best checkpoint: ", 1)[1])
+    assert best.is_file() and best.parent == new / "checkpoints"  # row 11

@@ -106,7 +106,9 @@ class LastCheckpoint(Checkpoint):
         if iteration == self._saved_at:
             return
         tmp = self.path.with_name(f".{LAST}.partial")
-        trainer.save_checkpoint(tmp)  # every rank takes part; only rank 0 writes
+        # Every rank takes part; only rank 0 writes. weights_only=False said, not defaulted
+        # to: Lightning logs a note at every save otherwise.
+        trainer.save_checkpoint(tmp, weights_only=False)
         if trainer.is_global_zero:
             os.replace(tmp, self.path)
         trainer.strategy.barrier("last_checkpoint")
@@ -152,7 +154,12 @@ class BestCheckpoint(ModelCheckpoint):
         )
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        super().load_state_dict(state_dict)
+        if state_dict.get("dirpath", self.dirpath) == self.dirpath:
+            super().load_state_dict(state_dict)
+        else:
+            # A resume writes into a new folder by design: Lightning's "The dirpath has changed"
+            # warning would be false, and what it then drops is carried over below.
+            self.best_model_path = state_dict["best_model_path"]
         score = state_dict.get("best_model_score")
         if score is not None and math.isfinite(float(score)):
             self.best_model_score = torch.as_tensor(float(score))

@@ -290,6 +290,29 @@ def _group_conflicts(
     ]
 
 
+def _may_change(saved: DictConfig) -> str:
+    """FREE and COMPUTES in words ("trainer.* except trainer.precision"), so that the refusal
+    says what the code allows."""
+    words = []
+    for key in (*FREE, "paths"):
+        node = isinstance(OmegaConf.select(saved, key, default=None), DictConfig) or key == "paths"
+        kept = [k for k in COMPUTES if _under(k, (key,))]
+        words.append(f"{key}.*" if node else key)
+        if kept:
+            words[-1] += f" except {', '.join(kept)}"
+    return ", ".join(words)
+
+
+def outputs_folder_of(run_dir: Path) -> Path | None:
+    """The paths.log_dir a run folder was made under, <log_dir>/<task>/runs/<name>/<time> or
+    <log_dir>/<task>/multiruns/<time>/<job> (conf/hydra/default.yaml); None for another
+    layout."""
+    parents = run_dir.absolute().parents
+    if len(parents) > 3 and parents[1].name in ("runs", "multiruns"):
+        return parents[3]
+    return None
+
+
 def restore_run(
     cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
 ) -> tuple[DictConfig, Resume | None]:
@@ -328,9 +351,15 @@ def restore_run(
         elif key == "hydra":
             _remove(restored, key)
     _set(restored, "ckpt_path", str(ckpt))
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    log_dir = outputs_folder_of(run_dir)
+    if log_dir is not None and not any(_under(o.key_or_group, ("paths",)) for o in parsed):
+        # The new folder goes beside the run, under the outputs folder the run used
+        # (its paths.log_dir), not under this machine's default.
+        _set(restored, "paths.log_dir", str(log_dir))
 
     applied, conflicts = [], []
-    for override in OverridesParser.create().parse_overrides(list(overrides)):
+    for override in parsed:
         key = override.key_or_group
         if key in ("ckpt_path", "resume"):
             continue
@@ -365,8 +394,8 @@ def restore_run(
         raise CheckpointError(
             f"cannot resume {ckpt} with settings other than its run's: "
             + "; ".join(conflicts)
-            + ". A resumed run keeps its own settings (only iterations, paths, logging and "
-            "trainer keys may change): leave these overrides out, or start a new run."
+            + f". A resumed run keeps its own settings; only these may differ: "
+            f"{_may_change(saved)}. Leave these overrides out, or start a new run."
         )
     OmegaConf.set_struct(restored, True)
     return restored, Resume(ckpt, run_dir, applied, from_checkpoint, run_choices)

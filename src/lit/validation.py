@@ -8,6 +8,7 @@ import difflib
 import typing
 
 import hydra
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.base import EVAL_PROTOCOLS
@@ -92,6 +93,24 @@ def check_trainable(cfg: DictConfig) -> None:
         )
 
 
+def check_accelerator(cfg: DictConfig) -> None:
+    """A GPU asked for where torch finds none: Lightning's own error ("No supported gpu backend
+    found!") comes as a traceback, after the data has loaded."""
+    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
+
+    accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
+    wanted = {"gpu": (CUDAAccelerator, MPSAccelerator), "cuda": (CUDAAccelerator,),
+              "mps": (MPSAccelerator,)}.get(accelerator, ())  # fmt: skip
+    if not wanted or any(kind.is_available() for kind in wanted):
+        return
+    build = " (a CPU-only build)" if torch.version.cuda is None else ""
+    raise ConfigError(
+        f"trainer.accelerator={accelerator} asks for a GPU, and torch {torch.__version__}"
+        f"{build} finds none on this machine. Run on the CPU with trainer=cpu, or leave "
+        "trainer= out: trainer=default takes a GPU where there is one."
+    )
+
+
 def _require(ok: bool, message: str) -> None:
     if not ok:
         raise ConfigError(message)
@@ -102,6 +121,7 @@ def validate_train_config(cfg: DictConfig) -> None:
     check_trainable(cfg)  # first: a baseline's config lacks what the checks below read
     check_constructor_keys(cfg)
     check_types(cfg, TrainConfig)  # then the comparisons below compare numbers
+    check_accelerator(cfg)
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
     seed = cfg.get("seed")
     if seed is not None:  # Lightning's seed_everything would raise numpy's range error
@@ -161,6 +181,7 @@ def validate_eval_config(cfg: DictConfig, schema: type = EvalConfig) -> None:
     own `schema`)."""
     check_constructor_keys(cfg)
     check_types(cfg, schema)
+    check_accelerator(cfg)
     if cfg.get("data") is not None:
         _check_protocol("data.eval_protocol", cfg.data.get("eval_protocol"))
 
