@@ -30,7 +30,7 @@ from src.lit.factory import (
     git_commit,
     register_resolvers,
 )
-from src.lit.runs import nothing_left_if_refused
+from src.lit.runs import nothing_left_if_refused, training_run_name
 from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
@@ -65,24 +65,6 @@ def load_for_eval(cfg: DictConfig):
             f"model={cfg.model.name} ...` and pass ckpt_path=<its checkpoint>."
         )
     return dm, module, OmegaConf.to_container(cfg.model, resolve=True), cfg.data.name
-
-
-def training_run_name(ckpt_path: str | Path) -> str:
-    """The name of the training run a checkpoint belongs to: `run_name` of the run's
-    config.yaml (<run>/checkpoints/<file>.ckpt), else the run folder's name (its parent's when
-    the folder is a timestamp)."""
-    path = Path(ckpt_path)
-    run = path.parent.parent if path.parent.name == "checkpoints" else path.parent
-    config = run / "config.yaml"
-    if config.is_file():
-        try:
-            name = OmegaConf.load(config).get("run_name")
-        except Exception:  # noqa: BLE001 (an unreadable config only loses the name)
-            name = None
-        if isinstance(name, str) and name:
-            return name
-    stamp = run.name.replace("-", "").replace("_", "")
-    return run.parent.name if stamp.isdigit() else run.name
 
 
 def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[ResultTable]:

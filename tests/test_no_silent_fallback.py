@@ -474,3 +474,87 @@ def test_rows_6_7_11_a_killed_and_resumed_run_prints_the_truth(tmp_path, synthet
     (best,) = [x for x in resumed.stdout.splitlines() if "best checkpoint: " in x]
     best = Path(best.split("best checkpoint: ", 1)[1])
     assert best.is_file() and best.parent == new / "checkpoints"  # row 11
+
+
+# ------------------------------------------ row 9: output folders name what they evaluate
+@pytest.mark.parametrize("config_name", ["eval", "visualize"])
+def test_row_9_folders_of_different_checkpoints_tell_them_apart(
+    config_name, tmp_path, synthetic_data_dir
+):
+    """Every checkpoint's output used to land in .../checkpoint_data/<time>."""
+    from tests.conftest import compose_config
+
+    li = _fake_run(tmp_path / "train/runs/li/2026-01-01_00-00-00", synthetic_data_dir, *RUN,
+                   "run_name=li2018_h36m")  # fmt: skip
+    gru = _fake_run(tmp_path / "train/runs/gru/2026-01-01_00-00-00", synthetic_data_dir, *RUN)
+    folders = {}
+    for ckpt in (li / "checkpoints" / "last.ckpt", gru / "checkpoints" / "best-epoch002.ckpt"):
+        cfg = compose_config(config_name, [f"ckpt_path={ckpt}"], tmp_path / "out")
+        folders[ckpt] = Path(str(cfg.hydra.run.dir)).parent.name
+    suffix = "_walking" if config_name == "visualize" else ""
+    assert list(folders.values()) == [
+        f"li2018_h36m_last{suffix}",
+        f"gru_s2s_synthetic_best-epoch002{suffix}",
+    ]
+    baseline = compose_config(config_name, ["model=zero_velocity", "data=cmu"], tmp_path / "b")
+    assert Path(str(baseline.hydra.run.dir)).parent.name == f"zero_velocity_cmu{suffix}"
+
+
+# ----------------------------- row 10: damaged checkpoints, a wrong MOTION_ARCHIVES
+class _NotTensors:
+    pass
+
+
+@pytest.mark.parametrize(
+    ("content", "reason"),
+    [
+        ("truncated", "the file is damaged: cut short, the end of its zip archive is missing"),
+        ("text", "it was not written by torch.save (it is not a zip archive"),
+        ("empty", "the file is empty"),
+        ("pickled_object", "it holds Python objects besides tensors and plain containers"),
+    ],
+)
+def test_row_10_an_unreadable_checkpoint_says_why_in_whole_words(content, reason, tmp_path):
+    """torch's message used to be cut mid-word ("...transferred incorrectly, o.") for a file
+    cut short, and was "101." for a text file."""
+    import torch
+
+    from src.lit.checkpoints import CheckpointError, read_checkpoint
+
+    path = tmp_path / "x.ckpt"
+    if content == "truncated":
+        torch.save({"state_dict": {"w": torch.zeros(1000)}, "motion": {}}, path)
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    elif content == "text":
+        path.write_text("epoch,loss\n1,0.5\n")
+    elif content == "empty":
+        path.write_bytes(b"")
+    else:
+        torch.save({"state_dict": {}, "motion": _NotTensors()}, path)
+    with pytest.raises(CheckpointError) as err:
+        read_checkpoint(path)
+    assert str(err.value) == (
+        f"cannot read checkpoint {path}: {reason}"
+        + str(err.value).split(reason, 1)[1]  # the rest of the reason, then the fix
+    )
+    assert str(err.value).endswith(". Use another checkpoint of the run (last.ckpt, best-*.ckpt).")
+    assert "\n" not in str(err.value) and "101" not in str(err.value)
+
+
+def test_row_10_a_wrong_motion_archives_says_the_folder_does_not_exist(tmp_path, monkeypatch):
+    from src.data.archive import ensure_dataset
+    from src.data.errors import DataError
+
+    wrong = tmp_path / "no_such_folder"
+    monkeypatch.setenv("MOTION_ARCHIVES", str(wrong))
+    # paths.archive_dir is ${oc.env:MOTION_ARCHIVES}: the same folder comes twice.
+    with pytest.raises(DataError) as err:
+        ensure_dataset("h36m", tmp_path / "data", archive_dir=str(wrong))
+    first = str(err.value).splitlines()[0]
+    assert first.count(str(wrong / "h3.6m.zip")) == 1, first
+    assert first.endswith(f"; MOTION_ARCHIVES={wrong}: that folder does not exist."), first
+    # A folder that exists but lacks the archive is not said to be missing.
+    wrong.mkdir()
+    with pytest.raises(DataError) as err:
+        ensure_dataset("h36m", tmp_path / "data", archive_dir=str(wrong))
+    assert "does not exist" not in str(err.value).splitlines()[0]

@@ -162,6 +162,33 @@ def nothing_left_if_refused(started: str | None = "config.yaml"):
         raise
 
 
+def training_run_name(ckpt_path: str | Path) -> str:
+    """The name of the training run a checkpoint belongs to: `run_name` of the run's
+    config.yaml (<run>/checkpoints/<file>.ckpt), else the run folder's name (its parent's when
+    the folder is a timestamp)."""
+    path = Path(ckpt_path)
+    run = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+    config = run / "config.yaml"
+    if config.is_file():
+        try:
+            name = OmegaConf.load(config).get("run_name")
+        except Exception:  # noqa: BLE001 (an unreadable config only loses the name)
+            name = None
+        if isinstance(name, str) and name:
+            return name
+    stamp = run.name.replace("-", "").replace("_", "")
+    return run.parent.name if stamp.isdigit() else run.name
+
+
+def evaluated_name(ckpt_path: str | None, model: str | None, data: str | None) -> str:
+    """The run_name of an evaluation or visualisation (the `evaluated` resolver of
+    conf/eval.yaml): the training run and checkpoint it evaluates, e.g. li2018_h36m_last, so
+    that the folders of different models tell apart; <model>_<data> for a baseline."""
+    if ckpt_path:
+        return f"{training_run_name(ckpt_path)}_{Path(str(ckpt_path)).stem}"
+    return f"{model or 'checkpoint'}_{data or 'data'}"
+
+
 # ------------------------------------------------------------------------------ lengths
 def check_schedule(cfg: DictConfig) -> None:
     """Training runs whole validation periods: `iterations` must be a multiple of `val_every`,
