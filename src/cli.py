@@ -1,6 +1,9 @@
 """What the entry points share on the command line: one-line errors instead of tracebacks,
 written `--help` pages, and only the warnings that are true for this project.
 
+A `--help` page is the `hydra.help.template` of the entry point's config (conf/train.yaml):
+written text, with `${options:<group>}` where a group's options go, read from conf/<group>/.
+
 `hydra_entry` is the decorator of the Hydra entry points (train, eval, visualize): it checks that
 the configs exist (a non-editable install has none), runs Hydra, and prints what Hydra rejects
 before the task starts (a misspelt key or option, an unparsable override) as one line naming the
@@ -30,9 +33,21 @@ from src.lit.factory import PROJECT_ROOT, ConfigError
 from src.lit.runs import USER_ERRORS
 from src.lit.validation import constructor_args
 
+CONF_DIR = PROJECT_ROOT / "conf"
+
+
+def group_options(group: str) -> str:
+    """The options of a config group, read from conf/<group>/: "cmu, h36m, synthetic". The
+    `options` resolver of the entry points' --help pages (`${options:data}` in a config's
+    hydra.help.template), so that a page lists what exists."""
+    return ", ".join(sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
+
+
+if not OmegaConf.has_resolver("options"):
+    OmegaConf.register_new_resolver("options", group_options)
+
 # What Hydra raises while it composes the config from the command line, before the task runs.
 HYDRA_USER_ERRORS = (ConfigCompositionException, OverrideParseException, SearchPathException)
-CONF_DIR = PROJECT_ROOT / "conf"
 
 
 def _print_error(message: object) -> None:

@@ -4,6 +4,7 @@ rows of the issue's table, one section each."""
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -558,3 +559,20 @@ def test_row_10_a_wrong_motion_archives_says_the_folder_does_not_exist(tmp_path,
     with pytest.raises(DataError) as err:
         ensure_dataset("h36m", tmp_path / "data", archive_dir=str(wrong))
     assert "does not exist" not in str(err.value).splitlines()[0]
+
+
+# ------------------------------------------------------------ row 12: train --help
+def test_row_12_train_help_is_written_and_lists_every_group_from_conf(tmp_path):
+    """It used to print Hydra's default page: 136 lines of raw config."""
+    proc = run_module("src.train", "--help", data_dir=tmp_path, log_dir=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    text = proc.stdout
+    assert len(text.splitlines()) < 70 and "_target_" not in text  # no raw config
+    groups = text.split("== Config groups (group=option) ==")[1].split("==")[0]
+    listed = dict(re.findall(r"^([\w/]+): (.+)$", groups, flags=re.M))
+    assert set(listed) == {g for g in _groups() if g not in ("paths", "hydra")}
+    for group, options in listed.items():
+        assert options.split(", ") == _options(group), group
+    for key in ("iterations=", "val_every=", "seed=", "data.allow_partial=", "resume=",
+                "model.optimizer.lr=", "+trainer.precision=", "--cfg job"):  # fmt: skip
+        assert key in text, key
