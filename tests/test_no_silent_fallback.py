@@ -576,3 +576,58 @@ def test_row_12_train_help_is_written_and_lists_every_group_from_conf(tmp_path):
     for key in ("iterations=", "val_every=", "seed=", "data.allow_partial=", "resume=",
                 "model.optimizer.lr=", "+trainer.precision=", "--cfg job"):  # fmt: skip
         assert key in text, key
+
+
+# ------------------------------------------------------------ row 13: the README's commands
+def _readme_command_lines() -> tuple[str, list[str]]:
+    from tests.conftest import ROOT
+
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```bash\n(.*?)```", text, flags=re.S)
+    lines = [line.split("  #")[0].strip() for block in blocks for line in block.splitlines()]
+    return text, [line for line in lines if line]
+
+
+def test_row_13_readme_commands_run_in_the_venv_after_the_quickstart():
+    """The Usage block's bare `python` was, on a fresh clone, not the venv's: every command
+    failed with ModuleNotFoundError."""
+    text, lines = _readme_command_lines()
+    activate = text.index("source .venv/bin/activate")
+    assert activate < text.index("## Usage")
+    for line in lines:
+        if line.startswith(("python ", "tensorboard ")):  # the venv's, once activated
+            assert text.index(line) > activate, line
+    assert "about 4 hours" not in text
+
+
+def _as_composable(args: list[str]) -> list[str]:
+    """A README command's overrides, composable: a sweep's first value for each key, and a
+    placeholder (<time>) filled in."""
+    out = []
+    for arg in args:
+        if arg == "-m":
+            continue
+        key, _, value = re.sub(r"<\w+>", "2026-01-01_00-00-00", arg).partition("=")
+        if "," in value and not value.startswith("["):
+            value = value.split(",")[0]
+        out.append(f"{key}={value}")
+    return out
+
+
+def test_row_13_every_readme_command_of_the_entry_points_composes_and_type_checks(tmp_path):
+    import shlex
+
+    from src.lit.schema import SCHEMAS, check_types
+    from src.lit.validation import check_constructor_keys
+    from tests.conftest import compose_config
+
+    _, lines = _readme_command_lines()
+    commands = [line for line in lines if re.match(r"(\.venv/bin/)?python -m src\.(train|eval|"
+                                                   r"visualize)\b", line)]  # fmt: skip
+    assert len(commands) >= 15
+    for line in commands:
+        words = shlex.split(line.split("&&")[-1].strip())
+        entry = words[2].removeprefix("src.")
+        cfg = compose_config(entry, _as_composable(words[3:]), tmp_path)
+        check_constructor_keys(cfg)
+        check_types(cfg, SCHEMAS[entry])
