@@ -408,7 +408,6 @@ def test_row_7_only_the_false_warnings_are_silenced():
 
     from src.cli import silence_false_warnings
 
-    silence_false_warnings()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         silence_false_warnings()  # after simplefilter: its filters come first

@@ -332,7 +332,7 @@ def test_same_command_twice_gives_two_run_folders(tmp_path, synthetic_data_dir):
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["metrics.dim_rule=windows"], "metrics.dim_rule='windows': use future or window"),
+        (["metrics.dim_rule=windows"], "metrics.dim_rule='windows' must be future or window"),
         (["model.lambda_2=-1"], r"model.lambda_2=-1 must be >= 0"),
         (["adversarial.lambda_adv=-0.1"], r"adversarial.lambda_adv=-0.1 must be >= 0"),
         (["adversarial.lambda_2=-1"], r"adversarial.lambda_2=-1 must be >= 0"),
