@@ -17,36 +17,18 @@ import logging
 import time
 from pathlib import Path
 
-import hydra
 import lightning as L
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
-from src.lit.factory import build_for_evaluation, git_commit, register_resolvers
-from src.lit.runs import nothing_left_if_refused
-from src.lit.validation import hydra_entry, validate_eval_config
+from src.cli import hydra_entry
+from src.lit.factory import build_for_evaluation, build_trainer, git_commit, register_resolvers
+from src.lit.runs import nothing_left_if_refused, training_run_name
+from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
 
 log = logging.getLogger(__name__)
 register_resolvers()
-
-
-def training_run_name(ckpt_path: str | Path) -> str:
-    """The name of the training run a checkpoint belongs to: `run_name` of the run's
-    config.yaml (<run>/checkpoints/<file>.ckpt), else the run folder's name (its parent's when
-    the folder is a timestamp)."""
-    path = Path(ckpt_path)
-    run = path.parent.parent if path.parent.name == "checkpoints" else path.parent
-    config = run / "config.yaml"
-    if config.is_file():
-        try:
-            name = OmegaConf.load(config).get("run_name")
-        except Exception:  # noqa: BLE001 (an unreadable config only loses the name)
-            name = None
-        if isinstance(name, str) and name:
-            return name
-    stamp = run.name.replace("-", "").replace("_", "")
-    return run.parent.name if stamp.isdigit() else run.name
 
 
 def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[ResultTable]:
@@ -85,7 +67,7 @@ def evaluate(cfg: DictConfig) -> dict:
     dm, module = build_for_evaluation(cfg)
     model_cfg = module.run_info["config"]["model"]
     dataset = module.run_info["config"]["data"]["name"]
-    trainer: L.Trainer = hydra.utils.instantiate(
+    trainer: L.Trainer = build_trainer(
         cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
     )
     trainer.test(module, datamodule=dm, verbose=False)

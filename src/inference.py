@@ -1,10 +1,15 @@
 """Deployable predictor: a trained checkpoint in, raw exp-map futures out, no data files needed.
 
     fc = MotionForecaster.from_checkpoint("outputs/.../checkpoints/last.ckpt")
-    future = fc.predict(frames)            # (50, F) or (B, 50, F) -> (..., 25, F)
+    future = fc.predict(frames)            # (50, F) or (B, 50, F) at 25 fps -> (..., 25, F)
+    future = fc.predict(raw, fps=50)       # (100, F) at 50 fps: every other frame is used
     stream = fc.stream()
     for frame in camera:                   # (F,) each
         future = stream.push(frame)        # None until 50 frames were seen
+
+Frames are raw exp-map rows at the rate the model was trained on, `fc.fps`: 25 fps, every other
+row of the dataset's files (protocol §1.3; H3.6M's files are 50 Hz). F is 99 on H3.6M, 117 on
+CMU. Frames at a whole multiple of that rate are subsampled with `fps=`; other rates are refused.
 
 Everything the model needs travels in the checkpoint (architecture.md): the network config
 (`ckpt["motion"]["config"]`), the weights, and the normaliser buffers (`normalizer.*`), so
@@ -18,6 +23,7 @@ import warnings
 from collections import deque
 from pathlib import Path
 
+import hydra
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -57,6 +63,12 @@ def _device(device: str | torch.device) -> torch.device:
     return dev
 
 
+def _fps_of(config: dict) -> float:
+    """The model's frame rate: that of the data it was trained on (MotionDataModule.frame_ms)."""
+    target = config.get("data", {}).get("_target_")
+    return 1000 / hydra.utils.get_class(target).frame_ms if target else 25.0
+
+
 class _FixedHorizon(nn.Module):
     """The normalised-space network with a fixed future_len, for export."""
 
@@ -88,7 +100,8 @@ def compile_for_prediction(net: nn.Module) -> nn.Module:
 
 
 class MotionForecaster:
-    """A trained predictor in eval mode; inputs and outputs are raw exp-map frames (..., F)."""
+    """A trained predictor in eval mode; inputs and outputs are raw exp-map frames (..., F) at
+    `fps` frames per second (25: every other row of the dataset's files, as in training)."""
 
     def __init__(
         self,
@@ -98,6 +111,7 @@ class MotionForecaster:
         observed_len: int = 50,
         device: str = "cpu",
         compile: bool | str = False,
+        fps: float = 25.0,
     ):
         """compile: run the network through `compile_for_prediction` (True, False, or
         "auto": on CUDA only). Off by default: whether it pays has not been measured on a
@@ -116,14 +130,38 @@ class MotionForecaster:
         self.actions = list(actions)
         self.observed_len = observed_len
         self.num_features = normalizer.num_features
+        self.fps = float(fps)
 
     @classmethod
     def from_checkpoint(
         cls, path: str | Path, device: str = "cpu", compile: bool | str = False
     ) -> MotionForecaster:
         module = load_trained(path)
-        observed_len = module.run_info["config"]["data"]["observed_len"]
-        return cls(module.net, module.normalizer, module.actions, observed_len, device, compile)
+        config = module.run_info["config"]
+        observed_len = config["data"]["observed_len"]
+        return cls(
+            module.net, module.normalizer, module.actions, observed_len, device, compile,
+            _fps_of(config),
+        )  # fmt: skip
+
+    def _step(self, fps: float | None) -> int:
+        """Every how many input frames one is used: 1 at the model's rate (or fps=None), k for
+        k times that rate. A rate that is no whole multiple cannot be subsampled: refused."""
+        if fps is None:
+            return 1
+        if isinstance(fps, bool) or not isinstance(fps, numbers.Real) or not fps > 0:
+            raise InferenceInputError(
+                f"fps must be a positive number of frames per second, got {fps!r}"
+            )
+        step = round(fps / self.fps)
+        if step < 1 or abs(fps / self.fps - step) > 1e-6:
+            raise InferenceInputError(
+                f"fps={fps:g}: this model forecasts from frames at {self.fps:g} fps, and {fps:g} "
+                f"is not a whole multiple of it. Resample the frames to {self.fps:g} fps (pass "
+                f"them without fps=), or pass frames at fps={2 * self.fps:g}, of which every "
+                "other one is used (as the protocol downsamples H3.6M's 50 Hz files)."
+            )
+        return step
 
     # ------------------------------------------------------------------ checks
     def _action_ids(self, action: str | None, batch: int) -> Tensor:
@@ -187,18 +225,27 @@ class MotionForecaster:
 
     @torch.inference_mode()
     def predict(
-        self, frames: np.ndarray, action: str | None = None, future_len: int = 25
+        self,
+        frames: np.ndarray,
+        action: str | None = None,
+        future_len: int = 25,
+        fps: float | None = None,
     ) -> np.ndarray:
-        """(observed_len, F) or (B, observed_len, F) raw frames -> (..., future_len, F)."""
-        T, F = self.observed_len, self.num_features
-        x = self._frames(frames, f"({T}, {F}) or (B, {T}, {F})")
+        """(observed_len, F) or (B, observed_len, F) raw frames at `self.fps` -> (...,
+        future_len, F) at `self.fps`. With fps= k times `self.fps`, give k * observed_len
+        frames: the newest and every k-th before it are used."""
+        step = self._step(fps)
+        T, F = self.observed_len * step, self.num_features
+        rate = f" at {fps:g} fps" if step > 1 else f" at {self.fps:g} fps"
+        x = self._frames(frames, f"({T}, {F}) or (B, {T}, {F}){rate}")
         single = x.dim() == 2
         x = x.unsqueeze(0) if single else x
         if x.dim() != 3 or x.shape[1] != T:
             raise InferenceInputError(
-                f"frames must be ({T}, {F}) or (B, {T}, {F}): the last {T} observed frames; "
-                f"got shape {tuple(np.shape(frames))}"
+                f"frames must be ({T}, {F}) or (B, {T}, {F}){rate}: the last {T} observed "
+                f"frames; got shape {tuple(np.shape(frames))}"
             )
+        x = x[:, step - 1 :: step].contiguous()  # the newest frame and every step-th before it
         future_len = _check_future_len(future_len)
         pred = self._network(x.shape[0], future_len)(
             self.normalizer.normalize(x), future_len, action=self._action_ids(action, x.shape[0])
@@ -206,8 +253,12 @@ class MotionForecaster:
         out = self.normalizer.unnormalize(pred).cpu().numpy()
         return out[0] if single else out
 
-    def stream(self, action: str | None = None, future_len: int = 25) -> ForecastStream:
-        return ForecastStream(self, action, future_len)
+    def stream(
+        self, action: str | None = None, future_len: int = 25, fps: float | None = None
+    ) -> ForecastStream:
+        """Push frames at `self.fps` (or at `fps`, a whole multiple of it: then every k-th
+        push, from the first, is used and answered; the others return None)."""
+        return ForecastStream(self, action, future_len, self._step(fps))
 
     # ------------------------------------------------------------------ export
     def _example(self) -> tuple[Tensor, Tensor]:
@@ -244,8 +295,11 @@ class ForecastStream:
     """Frame-by-frame forecasting over a ring buffer of the last observed_len frames: each push
     predicts from the buffer's window, as `predict` does."""
 
-    def __init__(self, forecaster: MotionForecaster, action: str | None, future_len: int):
+    def __init__(
+        self, forecaster: MotionForecaster, action: str | None, future_len: int, step: int = 1
+    ):
         self.fc, self.future_len = forecaster, _check_future_len(future_len)
+        self.step, self.pushed = step, 0  # a frame at step times the model's rate: every step-th
         self.action = forecaster._action_ids(action, 1)
         self.buffer: deque[Tensor] = deque(maxlen=forecaster.observed_len)
 
@@ -256,6 +310,9 @@ class ForecastStream:
         x = self.fc._frames(frame, f"({F},)")
         if x.shape != (F,):
             raise InferenceInputError(f"push takes one frame of shape ({F},), got {tuple(x.shape)}")
+        self.pushed += 1
+        if (self.pushed - 1) % self.step:
+            return None
         self.buffer.append(self.fc.normalizer.normalize(x)[None])
         if len(self.buffer) < self.fc.observed_len:
             return None

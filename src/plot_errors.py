@@ -27,8 +27,8 @@ import matplotlib
 from matplotlib.backend_bases import FigureCanvasBase
 from omegaconf import OmegaConf
 
+from src.cli import friendly_errors
 from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.lit.validation import friendly_errors
 from src.reporting.plots import error_vs_horizon
 from src.reporting.published import published_datasets
 

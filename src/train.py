@@ -15,9 +15,9 @@ import logging
 import math
 import os
 import time
+import warnings
 from pathlib import Path
 
-import hydra
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
@@ -27,6 +27,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
+from src.cli import hydra_entry
 from src.lit.checkpoints import (
     BestCheckpoint,
     LastCheckpoint,
@@ -40,6 +41,7 @@ from src.lit.factory import (
     ConfigError,
     build_datamodule,
     build_module,
+    build_trainer,
     git_commit,
     register_resolvers,
 )
@@ -47,7 +49,7 @@ from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
 from src.lit.runs import check_schedule, describe, nothing_left_if_refused, restore_run
-from src.lit.validation import hydra_entry, validate_train_config
+from src.lit.validation import validate_train_config
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
@@ -142,7 +144,7 @@ def train(cfg: DictConfig) -> float:
     checkpoints = BestCheckpoint(out_dir / "checkpoints")
     last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path
-    trainer: L.Trainer = hydra.utils.instantiate(
+    trainer: L.Trainer = build_trainer(
         cfg.trainer,
         max_epochs=cfg.iterations // cfg.val_every,  # exact: check_schedule
         logger=logger,
@@ -160,7 +162,11 @@ def train(cfg: DictConfig) -> float:
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()
-    trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
+    with warnings.catch_warnings():
+        # False here: the training sampler continues a resumed epoch at the exact batch
+        # (dm.resume_iteration above; tests/test_runs.py resumes bit for bit).
+        warnings.filterwarnings("ignore", message=".*your dataloader is not resumable")
+        trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
     wall = time.perf_counter() - start
 
     final = {
@@ -185,6 +191,7 @@ def train(cfg: DictConfig) -> float:
         OmegaConf.save(OmegaConf.create(summary), out_dir / "summary.yaml")
         log.info("run folder: %s", out_dir)
         log.info("last checkpoint: %s", last.path)
+        log.info("best checkpoint: %s", best_path or "none (no validation finished)")
         log.info("best average validation Euler error: %.4f", score)
     return score
 

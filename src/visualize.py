@@ -25,16 +25,17 @@ from pathlib import Path
 import matplotlib
 from omegaconf import DictConfig
 
+from src.cli import hydra_entry
 from src.data.base import MotionDataModule
 from src.lit.factory import ConfigError, build_for_evaluation, register_resolvers
 from src.lit.runs import nothing_left_if_refused
-from src.lit.validation import check_number_types, hydra_entry, validate_eval_config
+from src.lit.schema import VisualizeConfig
+from src.lit.validation import validate_eval_config
 from src.metrics.kinematics import Skeleton
 from src.reporting.plots import animate, frame_strip, window_rows
 
 log = logging.getLogger(__name__)
 register_resolvers()
-FORMATS = ("gif", "mp4")
 
 
 def select_window(dm: MotionDataModule, action: str, window: int) -> int:
@@ -67,24 +68,20 @@ def _writer(fmt: str, fps: float):
 
 
 def _check_settings(cfg: DictConfig) -> None:
-    """Hydra passes values as typed: a word would fail deep in the drawing with a traceback,
-    int() would show window 1 for window=1.5, and any non-empty word would read as true."""
-    check_number_types(cfg, ("window", "observed_shown", "strip_step"), optional=False)
-    # window's range depends on the action: select_window names it.
+    """The types first (src/lit/schema.py's VisualizeConfig): a word would fail deep in the
+    drawing with a traceback, int() would show window 1 for window=1.5, and any non-empty word
+    would read as true. Then the ranges; window's depends on the action: select_window names
+    it."""
+    validate_eval_config(cfg, VisualizeConfig)
     for key in ("observed_shown", "strip_step"):
         if cfg[key] < 1:
             raise ConfigError(f"{key}={cfg[key]} must be >= 1")
-    if not isinstance(cfg.baseline, bool):
-        raise ConfigError(f"baseline={cfg.baseline!r} must be true or false")
 
 
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
     matplotlib.use("Agg")
-    if cfg.format not in FORMATS:
-        raise ConfigError(f"format={cfg.format!r}: choose one of {', '.join(FORMATS)}")
     _check_settings(cfg)
-    validate_eval_config(cfg)
     dm, module = build_for_evaluation(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)
     rows, n_obs, what = window_rows(

@@ -113,7 +113,10 @@ def test_runs_never_share_a_folder(tmp_path):
 
 @pytest.mark.parametrize(
     ("override", "message"),
-    [("metrics.dim_rule=futur", "use future or window"), ("protocol=srn", "use one of: srnn")],
+    [
+        ("metrics.dim_rule=futur", "metrics.dim_rule='futur' must be future or window"),
+        ("protocol=srn", "protocol='srn' must be srnn, random, strided or null"),
+    ],
 )
 def test_eval_settings_are_validated(override, message, tmp_path):
     from src.lit.factory import ConfigError
@@ -140,7 +143,7 @@ def test_eval_settings_are_validated(override, message, tmp_path):
         (["model.optimizer.lr=abc"], r"model.optimizer.lr='abc' must be a number"),
         (["sampling.eta=abc"], r"sampling.eta='abc' must be a number"),
         (["model.lr_decay_gamma=abc"], r"model.lr_decay_gamma='abc' must be a number"),
-        (["compile.enabled=maybe"], r"compile.enabled='maybe': use true, false or auto"),
+        (["compile.enabled=maybe"], r"compile.enabled='maybe' must be true, false or auto"),
     ],
 )
 def test_values_of_the_wrong_type_are_rejected_before_training(

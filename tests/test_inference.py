@@ -289,3 +289,39 @@ def test_ragged_or_non_numeric_frames_raise_clear_errors(forecaster, frames):
         forecaster.predict("walking")
     with pytest.raises(InferenceInputError, match="numeric array"):
         forecaster.stream().push({"frame": 1})
+
+
+def test_the_frame_rate_is_stated_and_other_rates_are_subsampled_or_refused(forecaster, frames):
+    """Issue #26 row 14: 50 consecutive raw rows (50 Hz on H3.6M) used to be forecast as if
+    they were 2 s at 25 fps, without a word."""
+    from src.inference import _fps_of
+
+    assert forecaster.fps == 25.0  # every other row of the files (protocol §1.3)
+    for data in ("src.data.h36m.H36MDataModule", "src.data.cmu.CMUDataModule"):
+        assert _fps_of({"data": {"_target_": data}}) == 25.0
+    raw = np.concatenate([frames[:, :50], frames[:, 10:60]], axis=1)  # (4, 100, F) at 50 fps
+    np.testing.assert_allclose(
+        forecaster.predict(raw, fps=50), forecaster.predict(raw[:, 1::2]), rtol=1e-5, atol=1e-6
+    )
+    np.testing.assert_allclose(
+        forecaster.predict(raw[0, 50:], fps=25.0), forecaster.predict(raw[0, 50:]), atol=0
+    )
+    with pytest.raises(InferenceInputError, match=r"\(100, 99\) or \(B, 100, 99\) at 50 fps"):
+        forecaster.predict(raw[0, :50], fps=50)  # 1 s of 50 fps frames
+    with pytest.raises(InferenceInputError, match="fps=30: this model forecasts from frames at 25"):
+        forecaster.predict(raw[0], fps=30)
+    for bad in (0, -25, True, "50"):
+        with pytest.raises(InferenceInputError, match="fps must be a positive number"):
+            forecaster.predict(raw[0, :50], fps=bad)
+    with pytest.raises(InferenceInputError, match="fps=60"):
+        forecaster.stream(fps=60)
+
+
+def test_a_stream_at_twice_the_rate_uses_every_other_frame(forecaster, frames):
+    seq = np.concatenate([frames[0], frames[1]])  # 120 frames at 50 fps
+    stream = forecaster.stream(fps=50)
+    answers = [stream.push(frame) for frame in seq[:103]]
+    assert all(a is None for a in answers[:98]) and answers[99] is None
+    kept = seq[0:103:2]  # frames 0, 2, 4, ...: the first push is used
+    np.testing.assert_allclose(answers[98], forecaster.predict(kept[:50]), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(answers[102], forecaster.predict(kept[2:52]), rtol=1e-4, atol=1e-5)

@@ -11,12 +11,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.cli import friendly_errors
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
-from src.lit.validation import friendly_errors, validate_train_config
+from src.lit.validation import validate_train_config
 from tests.conftest import compose_config, run_module
 from tests.test_resume import TINY
 
@@ -331,7 +332,7 @@ def test_same_command_twice_gives_two_run_folders(tmp_path, synthetic_data_dir):
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["metrics.dim_rule=windows"], "metrics.dim_rule='windows': use future or window"),
+        (["metrics.dim_rule=windows"], "metrics.dim_rule='windows' must be future or window"),
         (["model.lambda_2=-1"], r"model.lambda_2=-1 must be >= 0"),
         (["adversarial.lambda_adv=-0.1"], r"adversarial.lambda_adv=-0.1 must be >= 0"),
         (["adversarial.lambda_2=-1"], r"adversarial.lambda_2=-1 must be >= 0"),

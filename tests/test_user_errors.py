@@ -182,7 +182,7 @@ def test_cli_misspelt_key_names_the_close_matches(entry, tmp_path, synthetic_dat
 
 def test_misspelt_key_in_train_config_names_the_close_matches(monkeypatch, capsys):
     """The same on the train config, in-process, through the entry points' decorator."""
-    from src.lit.validation import hydra_entry
+    from src.cli import hydra_entry
 
     called = []
     entry = hydra_entry("train")(lambda cfg: called.append(cfg))
@@ -209,7 +209,7 @@ def test_key_of_a_group_left_unchosen_says_to_choose_it(entry, monkeypatch, caps
     """src.eval ckpt_path=... data.allow_partial=true (as --help lists it): the data comes from
     the checkpoint, so no data option is chosen; the message used to be "data.allow_partial:
     no such key. Did you mean data.allow_partial?"."""
-    from src.lit.validation import hydra_entry
+    from src.cli import hydra_entry
 
     called = []
     main = hydra_entry(entry)(lambda cfg: called.append(cfg))
@@ -425,11 +425,11 @@ def test_plot_errors_shows_no_published_curve_for_synthetic_results(tmp_path, mo
 def test_installed_without_the_configs_is_one_line(tmp_path, monkeypatch, capsys):
     """`pip install .` leaves the configs behind: simulated by pointing the config folder at
     a place that does not exist, as it is beside an installed copy in site-packages."""
-    import src.lit.validation as validation
+    import src.cli as cli
     from src.eval import main
 
-    validation.check_installation()  # the clone has its configs
-    monkeypatch.setattr(validation, "CONF_DIR", tmp_path / "site-packages" / "conf")
+    cli.check_installation()  # the clone has its configs
+    monkeypatch.setattr(cli, "CONF_DIR", tmp_path / "site-packages" / "conf")
     monkeypatch.setattr(sys, "argv", ["src.eval", "model=zero_velocity", "data=synthetic"])
     with pytest.raises(SystemExit) as info:
         main()

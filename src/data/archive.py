@@ -86,18 +86,24 @@ def _find_archive(
             )
         return path
 
-    searched = []
-    for folder in (archive_dir, os.environ.get(ARCHIVES_ENV), data_dir):
+    searched, absent = [], []
+    env = os.environ.get(ARCHIVES_ENV)
+    for folder, name in ((archive_dir, "data.archive_dir"), (env, ARCHIVES_ENV), (data_dir, None)):
         if folder is None or str(folder) == "":
             continue
         candidate = Path(folder).expanduser() / spec.archive_name
+        if str(candidate) in searched:  # data.archive_dir defaults to $MOTION_ARCHIVES
+            continue
         searched.append(str(candidate))
         if candidate.is_file():
             return candidate
+        if name is not None and not candidate.parent.is_dir():
+            name = ARCHIVES_ENV if str(folder) == str(env) else name
+            absent.append(f"{name}={folder}: that folder does not exist")
 
     raise DataNotFoundError(
         f"{spec.name} data not found: there is no folder {data_dir / spec.marker} and no archive "
-        f"(looked for {', '.join(searched)}).\n"
+        f"(looked for {', '.join(searched)}){''.join(f'; {a}' for a in absent)}.\n"
         f"Fix: {_how_to_get(spec)}, then either\n"
         f"  - set {ARCHIVES_ENV}=<the folder holding {spec.archive_name}>, or\n"
         f"  - pass data.archive=<path to {spec.archive_name}, or its http(s) URL to download it>.\n"

@@ -22,6 +22,7 @@ import logging
 import math
 import os
 import signal
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -96,7 +97,9 @@ class LastCheckpoint(Checkpoint):
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         tmp = self.path.with_name(f".{LAST}.partial")
-        trainer.save_checkpoint(tmp)  # every rank takes part; only rank 0 writes
+        # Every rank takes part; only rank 0 writes. weights_only=False said, not defaulted
+        # to: Lightning logs a note at every save otherwise.
+        trainer.save_checkpoint(tmp, weights_only=False)
         if trainer.is_global_zero:
             os.replace(tmp, self.path)
         trainer.strategy.barrier("last_checkpoint")
@@ -155,7 +158,12 @@ class BestCheckpoint(ModelCheckpoint):
         )
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        super().load_state_dict(state_dict)
+        if state_dict.get("dirpath", self.dirpath) == self.dirpath:
+            super().load_state_dict(state_dict)
+        else:
+            # A resume writes into a new folder by design: Lightning's "The dirpath has changed"
+            # warning would be false, and what it then drops is carried over below.
+            self.best_model_path = state_dict["best_model_path"]
         score = state_dict.get("best_model_score")
         if score is not None and math.isfinite(float(score)):
             self.best_model_score = torch.as_tensor(float(score))
@@ -193,11 +201,9 @@ def read_checkpoint(path: str | Path) -> dict:
         # checkpoints hold only tensors and plain containers.
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise CheckpointError(
-            f"cannot read checkpoint {path}: {first[:300]}. The file is damaged (e.g. "
-            "truncated by a killed copy) or was not written by torch.save; use another "
-            "checkpoint of the run (last.ckpt, best-*.ckpt)."
+            f"cannot read checkpoint {path}: {_unreadable(path, err)}. Use another checkpoint "
+            "of the run (last.ckpt, best-*.ckpt)."
         ) from err
     if not isinstance(ckpt, dict) or "motion" not in ckpt or "state_dict" not in ckpt:
         raise CheckpointError(
@@ -205,6 +211,30 @@ def read_checkpoint(path: str | Path) -> dict:
             "section). Train one with `python -m src.train ...`."
         )
     return ckpt
+
+
+def _unreadable(path: Path, err: Exception) -> str:
+    """Why torch.load failed, in words: torch says a paragraph for a file cut short and a bare
+    number ("101", a pickle opcode) for a text file."""
+    with path.open("rb") as f:
+        head = f.read(4)
+    if not head:
+        return "the file is empty"
+    if head != b"PK\x03\x04":  # torch.save writes a zip archive
+        return "it was not written by torch.save (it is not a zip archive: text, or another format)"
+    if not zipfile.is_zipfile(path):
+        return (
+            "the file is damaged: cut short, the end of its zip archive is missing (as after an "
+            "interrupted copy or write)"
+        )
+    text = " ".join(str(err).split()) or type(err).__name__
+    if text.startswith("Weights only load failed"):
+        return (
+            "it holds Python objects besides tensors and plain containers, which are not "
+            "loaded (weights_only: no code from a file runs); this project's checkpoints hold none"
+        )
+    first = text.split(". ")[0].rstrip(".")  # a whole sentence, never cut mid-word
+    return f"the file is damaged ({first})"
 
 
 def require_resumable(ckpt: dict, path: str | Path) -> None:

@@ -12,6 +12,7 @@ from typing import Any
 
 import hydra
 from hydra.errors import InstantiationException
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.errors import DataError
@@ -29,6 +30,10 @@ class ConfigError(ValueError):
 def register_resolvers() -> None:
     if not OmegaConf.has_resolver("project_root"):
         OmegaConf.register_new_resolver("project_root", lambda: str(PROJECT_ROOT))
+    if not OmegaConf.has_resolver("evaluated"):
+        from src.lit.runs import evaluated_name  # here: runs.py imports this module
+
+        OmegaConf.register_new_resolver("evaluated", evaluated_name)
 
 
 def git_commit() -> str:
@@ -61,10 +66,16 @@ def _instantiate(node, **kwargs):
         cause = err.__cause__
         if isinstance(cause, (DataError, ConfigError)):
             raise cause from None
-        if isinstance(cause, ValueError):
+        if isinstance(cause, (ValueError, MisconfigurationException)):
             target = node.get("_target_", "?") if hasattr(node, "get") else "?"
             raise ConfigError(f"{target}: {cause}") from None
         raise
+
+
+def build_trainer(trainer_cfg: DictConfig, **kwargs):
+    """The Lightning Trainer of `trainer_cfg` (kwargs: what only the entry point knows); a
+    setting Lightning refuses (devices=0, an unknown strategy) is a one-line ConfigError."""
+    return _instantiate(trainer_cfg, **kwargs)
 
 
 # ---------------------------------------------------------------------------- data

@@ -74,8 +74,7 @@ class PrepareRun(Callback):
     def on_run_start(self, config: DictConfig, config_name: str | None = None, **kwargs) -> None:
         from lightning.pytorch.utilities import rank_zero_only
 
-        from src.lit.runs import claim_run_folder
-        from src.lit.validation import USER_ERRORS
+        from src.lit.runs import USER_ERRORS, claim_run_folder
 
         if rank_zero_only.rank != 0:  # DDP's other ranks: Lightning passes rank 0's folder
             return

@@ -24,9 +24,14 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from src.data.errors import DataError
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
 from src.lit.factory import ConfigError
-from src.lit.validation import USER_ERRORS
+from src.lit.predictor import NonFiniteLossError
+
+# The project's errors for a user's mistake (bad data, config, checkpoint, a diverged run): a
+# refused run leaves nothing behind, and the command line prints them as one line (src/cli.py).
+USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
 
 # Where files live on this machine: always taken from this command, never from the resumed run.
 FROM_HERE = (
@@ -157,6 +162,33 @@ def nothing_left_if_refused(started: str | None = "config.yaml"):
         raise
 
 
+def training_run_name(ckpt_path: str | Path) -> str:
+    """The name of the training run a checkpoint belongs to: `run_name` of the run's
+    config.yaml (<run>/checkpoints/<file>.ckpt), else the run folder's name (its parent's when
+    the folder is a timestamp)."""
+    path = Path(ckpt_path)
+    run = path.parent.parent if path.parent.name == "checkpoints" else path.parent
+    config = run / "config.yaml"
+    if config.is_file():
+        try:
+            name = OmegaConf.load(config).get("run_name")
+        except Exception:  # noqa: BLE001 (an unreadable config only loses the name)
+            name = None
+        if isinstance(name, str) and name:
+            return name
+    stamp = run.name.replace("-", "").replace("_", "")
+    return run.parent.name if stamp.isdigit() else run.name
+
+
+def evaluated_name(ckpt_path: str | None, model: str | None, data: str | None) -> str:
+    """The run_name of an evaluation or visualisation (the `evaluated` resolver of
+    conf/eval.yaml): the training run and checkpoint it evaluates, e.g. li2018_h36m_last, so
+    that the folders of different models tell apart; <model>_<data> for a baseline."""
+    if ckpt_path:
+        return f"{training_run_name(ckpt_path)}_{Path(str(ckpt_path)).stem}"
+    return f"{model or 'checkpoint'}_{data or 'data'}"
+
+
 # ------------------------------------------------------------------------------ lengths
 def check_schedule(cfg: DictConfig) -> None:
     """Training runs whole validation periods: `iterations` must be a multiple of `val_every`,
@@ -285,6 +317,29 @@ def _group_conflicts(
     ]
 
 
+def _may_change(saved: DictConfig) -> str:
+    """FREE and COMPUTES in words ("trainer.* except trainer.precision"), so that the refusal
+    says what the code allows."""
+    words = []
+    for key in (*FREE, "paths"):
+        node = isinstance(OmegaConf.select(saved, key, default=None), DictConfig) or key == "paths"
+        kept = [k for k in COMPUTES if _under(k, (key,))]
+        words.append(f"{key}.*" if node else key)
+        if kept:
+            words[-1] += f" except {', '.join(kept)}"
+    return ", ".join(words)
+
+
+def outputs_folder_of(run_dir: Path) -> Path | None:
+    """The paths.log_dir a run folder was made under, <log_dir>/<task>/runs/<name>/<time> or
+    <log_dir>/<task>/multiruns/<time>/<job> (conf/hydra/default.yaml); None for another
+    layout."""
+    parents = run_dir.absolute().parents
+    if len(parents) > 3 and parents[1].name in ("runs", "multiruns"):
+        return parents[3]
+    return None
+
+
 def restore_run(
     cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
 ) -> tuple[DictConfig, Resume | None]:
@@ -323,9 +378,15 @@ def restore_run(
         elif key == "hydra":
             _remove(restored, key)
     _set(restored, "ckpt_path", str(ckpt))
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    log_dir = outputs_folder_of(run_dir)
+    if log_dir is not None and not any(_under(o.key_or_group, ("paths",)) for o in parsed):
+        # The new folder goes beside the run, under the outputs folder the run used
+        # (its paths.log_dir), not under this machine's default.
+        _set(restored, "paths.log_dir", str(log_dir))
 
     applied, conflicts = [], []
-    for override in OverridesParser.create().parse_overrides(list(overrides)):
+    for override in parsed:
         key = override.key_or_group
         if key in ("ckpt_path", "resume"):
             continue
@@ -360,8 +421,8 @@ def restore_run(
         raise CheckpointError(
             f"cannot resume {ckpt} with settings other than its run's: "
             + "; ".join(conflicts)
-            + ". A resumed run keeps its own settings (only iterations, paths, logging and "
-            "trainer keys may change): leave these overrides out, or start a new run."
+            + f". A resumed run keeps its own settings; only these may differ: "
+            f"{_may_change(saved)}. Leave these overrides out, or start a new run."
         )
     OmegaConf.set_struct(restored, True)
     return restored, Resume(ckpt, run_dir, applied, from_checkpoint, run_choices)

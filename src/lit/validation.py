@@ -1,258 +1,37 @@
-"""Checks a composed config before anything expensive runs, and turns the project's own errors
-into one clear line instead of a traceback.
-
-`hydra_entry` is the decorator of the Hydra entry points (train, eval, visualize): it checks that
-the configs exist (a non-editable install has none), runs Hydra, and prints what Hydra rejects
-before the task starts (a misspelt key or option, an unparsable override) as one line naming the
-close matches; `friendly_errors` does the same for the project's errors raised by the task.
-"""
+"""Checks of a composed config, before anything expensive runs: every value against the type
+the code expects (src/lit/schema.py), keys added with + against the constructor they configure,
+ranges, and what the machine can run."""
 
 from __future__ import annotations
 
 import difflib
-import functools
-import inspect
-import logging
-import os
-import sys
-from pathlib import Path
+import typing
 
 import hydra
-from hydra.errors import (
-    ConfigCompositionException,
-    MissingConfigException,
-    OverrideParseException,
-    SearchPathException,
-)
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from src.data.base import EVAL_PROTOCOLS
-from src.data.errors import DataError
-from src.lit.checkpoints import CheckpointError
-from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.lit.predictor import NonFiniteLossError
+from src.lit.factory import ConfigError
+from src.lit.schema import (
+    INSTANTIATE_KEYS,
+    Data,
+    EvalConfig,
+    TrainConfig,
+    check_types,
+    constructor_types,
+)
 
-log = logging.getLogger("src")
-
-USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
-# What Hydra raises while it composes the config from the command line, before the task runs.
-HYDRA_USER_ERRORS = (ConfigCompositionException, OverrideParseException, SearchPathException)
-CONF_DIR = PROJECT_ROOT / "conf"
-# Keys of an instantiated node that are not constructor arguments: Hydra's own, and the
-# dataset name (src.lit.factory.build_datamodule drops it).
-_INSTANTIATE_KEYS = {"_target_", "_partial_", "_convert_", "_recursive_", "_args_"}
-_NOT_PASSED = {"data": {"name"}}
+# Keys of a data node that are not data module arguments (the dataset's name).
+_NOT_PASSED = {"data": set(typing.get_type_hints(Data))}
 
 
-def _print_error(message: object) -> None:
-    """What a user sees instead of a traceback: `error: <what is wrong and the fix>`."""
-    print(f"error: {message}", file=sys.stderr)
-
-
-def friendly_errors(fn):
-    """Print the project's own errors as one message and exit with status 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except USER_ERRORS as err:
-            _print_error(err)
-            sys.exit(2)
-
-    return wrapper
-
-
-def check_installation(conf_dir: Path | None = None) -> None:
-    """The configs live in conf/ beside the package in the clone; `pip install .` (not
-    editable) copies only the package into site-packages, where Hydra then finds no configs."""
-    conf_dir = CONF_DIR if conf_dir is None else conf_dir
-    if not (conf_dir / "train.yaml").is_file():
-        raise ConfigError(
-            f"the project's configs are missing: {conf_dir} holds no train.yaml, so the package "
-            f"was run from {PROJECT_ROOT / 'src'} without the clone it belongs to (as after "
-            "`pip install .`, which copies only the Python code). Fix: `pip uninstall "
-            "motion-forecast`, then install from the clone with `pip install -e .` (editable) "
-            "and run the commands there."
-        )
-
-
-def hydra_entry(config_name: str):
-    """`@hydra.main` for `conf/<config_name>.yaml` with the project's one-line errors.
-
-    Replaces the pair `@hydra.main(version_base="1.3", config_path="../conf", config_name=...)`
-    and `@friendly_errors`. Hydra's own messages for a misspelt key, a misspelt option or an
-    unparsable override span several lines without the valid keys; here they become one line
-    naming the close matches. HYDRA_FULL_ERROR=1 still shows Hydra's full traceback.
-    """
-
-    def decorate(fn):
-        task = friendly_errors(fn)
-
-        @functools.wraps(fn)
-        def entry(cfg_passthrough: DictConfig | None = None):
-            if cfg_passthrough is not None:
-                return task(cfg_passthrough)
-            try:
-                check_installation()
-            except ConfigError as err:
-                _print_error(err)
-                sys.exit(2)
-            run = hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name=config_name)
-            if os.environ.get("HYDRA_FULL_ERROR") == "1":
-                return run(task)()
-            # Hydra prints composition errors itself and exits, unless HYDRA_FULL_ERROR is set:
-            # then it raises them, and they are reported here.
-            os.environ["HYDRA_FULL_ERROR"] = "1"
-            try:
-                return run(task)()
-            except HYDRA_USER_ERRORS as err:
-                _print_error(describe_hydra_error(err, config_name, _command_line_overrides()))
-                sys.exit(2)
-            finally:
-                os.environ.pop("HYDRA_FULL_ERROR", None)
-
-        return entry
-
-    return decorate
-
-
-def _command_line_overrides() -> list[str]:
-    return [a for a in sys.argv[1:] if not a.startswith("-")]
-
-
-def describe_hydra_error(err: Exception, config_name: str, overrides: list[str]) -> str:
-    """One line for an error Hydra raised while composing `config_name` with `overrides`."""
-    text = str(err)
-    if isinstance(err, OverrideParseException):
-        return (
-            f"cannot parse the override {err.override!r}: {err.message.splitlines()[0]}. Fix: "
-            "write key=value; quote a value holding '=', ',', spaces or brackets, e.g. "
-            "\"ckpt_path='a=b,c/last.ckpt'\"."
-        )
-    if isinstance(err, MissingConfigException) and err.options is not None:
-        group = os.path.dirname(err.missing_cfg_file or "") or "?"
-        wanted = os.path.basename(err.missing_cfg_file or "")
-        close = difflib.get_close_matches(wanted, err.options, n=3, cutoff=0.5)
-        hint = f" Did you mean {group}={' or '.join(close)}?" if close else ""
-        return (
-            f"{group}={wanted}: no such option of {config_name}.{hint} Choose one of: "
-            f"{', '.join(sorted(err.options))}."
-        )
-    if text.startswith("Could not override '"):
-        key = text[len("Could not override '") :].split("'", 1)[0]
-        config = _compose_without(config_name, overrides, key)
-        return unknown_key_message(key, config, groups=config_groups(config_name))
-    if text.startswith("Could not append to config. An item is already at '"):
-        key = text.split("'")[1]
-        return (
-            f"+{key}: the config already has {key}; set it without the +: {key}=<value> "
-            f"(`python -m src.{config_name} --help` lists the settings)."
-        )
-    return f"{' '.join(text.split())} (`python -m src.{config_name} --help` lists the settings)"
-
-
-def _compose_without(config_name: str, overrides: list[str], key: str) -> dict | None:
-    """The config composed from the other overrides (to find the keys that do exist), as a
-    plain unresolved dict; None if it cannot be composed."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    def key_of(override: str) -> str:
-        return override.split("=", 1)[0].lstrip("+~")
-
-    others = [o for o in overrides if key_of(o) != key and "=" in o]
-    # A sweep (a,b) or a misspelt neighbour must not hide the keys: fall back to fewer overrides.
-    choices = [o for o in others if "." not in key_of(o) and "," not in o]
-    for attempt in (others, choices, []):
-        GlobalHydra.instance().clear()
-        try:
-            with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-                cfg = compose(config_name, overrides=attempt)
-            return OmegaConf.to_container(cfg, resolve=False)
-        except Exception:  # noqa: BLE001 (any failure: try with fewer overrides)
-            continue
-        finally:
-            GlobalHydra.instance().clear()
-    return None
-
-
-def config_groups(config_name: str) -> list[str]:
-    """The config groups `conf/<config_name>.yaml` composes (its defaults list, Hydra's own
-    left out): the options a `group=option` override may name."""
-    try:
-        primary = OmegaConf.to_container(OmegaConf.load(CONF_DIR / f"{config_name}.yaml"))
-        defaults = primary.get("defaults") or []
-    except Exception:  # noqa: BLE001 (only the suggestions are lost)
-        return []
-    groups = []
-    for entry in defaults:
-        name = next(iter(entry)) if isinstance(entry, dict) else str(entry).split(":")[0]
-        name = name.split()[-1]  # "optional experiment", "override /model"
-        if name not in ("_self_", "hydra") and not name.startswith("hydra/"):
-            groups.append(name.lstrip("/"))
-    return groups
-
-
-def unknown_key_message(key: str, config: dict | None, groups: list[str] = ()) -> str:
-    """`key` is not in `config` (a plain dict): name the closest keys that exist, including
-    constructor arguments of an instantiated node that the config leaves out (added with +)
-    and, at the top level, the config `groups` (which a baseline config may leave empty)."""
-    parts = key.split(".")
-    node, depth = config or {}, 0
-    while depth < len(parts) and isinstance(node, dict) and parts[depth] in node:
-        node, depth = node[parts[depth]], depth + 1
-    prefix, rest = parts[:depth], parts[depth + 1 :]
-    where = ".".join(prefix) or "the top level"
-    if depth == 0 and rest and parts[0] in groups:
-        # A group the config leaves empty (eval's data and model: a checkpoint brings its
-        # own): its keys exist once an option is chosen, so naming the key itself as the
-        # close match would not help.
-        group = parts[0]
-        options = "|".join(sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
-        return (
-            f"{key}: no {group} option is chosen, so there is no {key} to set. Choose one "
-            f"before it: {group}={options} {key}=<value> (with ckpt_path=, the checkpoint's "
-            f"own {group})."
-        )
-    if not isinstance(node, dict):
-        return (
-            f"{key}: {'.'.join(prefix)} is a value, not a group of settings, so it has no "
-            f"{'.'.join(parts[depth:])}. Set {'.'.join(prefix)}=<value>."
-        )
-    present = [str(k) for k in node if not str(k).startswith("_")]
-    if depth == 0:
-        present += [g for g in groups if g not in present]
-    addable = [a for a in _constructor_args(node) if a not in node]
-    wanted = parts[depth]
-    candidates = present + addable
-    if rest:  # the key goes deeper: only a group of settings (or a config group) can match
-        candidates = [c for c in present if isinstance(node.get(c), dict) or c in groups]
-    close = difflib.get_close_matches(wanted, candidates, n=3, cutoff=0.6)
-
-    def spell(name: str) -> str:
-        full = ".".join([*prefix, name, *rest])
-        return f"+{full}" if name in addable else full
-
-    hint = f"Did you mean {' or '.join(spell(c) for c in close)}? " if close else ""
-    added = ""
-    if any(c in addable for c in close):
-        added = " (+ adds an argument the config leaves out)"
-    shown = ", ".join(sorted(present)[:40])
-    return f"{key}: no such key. {hint}Keys under {where}: {shown}{added}."
-
-
-def _constructor_args(node: dict) -> list[str]:
+def constructor_args(node: dict) -> list[str]:
     """Keyword arguments of the class a config node instantiates ([] if none or unknown)."""
     target = node.get("_target_") if isinstance(node, dict) else None
-    if not isinstance(target, str):
+    if not isinstance(target, str) or not _importable(node):
         return []
-    try:
-        params = inspect.signature(hydra.utils.get_class(target)).parameters
-    except Exception:  # noqa: BLE001 (an unknown target is reported where it is built)
-        return []
-    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-    return [name for name, p in params.items() if p.kind in kinds]
+    return list(constructor_types(hydra.utils.get_class(target)) or [])
 
 
 def check_constructor_keys(cfg: DictConfig) -> None:
@@ -261,11 +40,12 @@ def check_constructor_keys(cfg: DictConfig) -> None:
     cannot check, which would otherwise fail deep inside the constructor with a TypeError."""
     plain = OmegaConf.to_container(cfg, resolve=False)
     for path, node in _instantiated_nodes(plain):
-        target = hydra.utils.get_class(node["_target_"]) if _importable(node) else None
-        if target is None or _takes_any_keyword(target):
-            continue
-        args = set(_constructor_args(node))
-        allowed = args | _INSTANTIATE_KEYS | _NOT_PASSED.get(path, set())
+        if not _importable(node):
+            continue  # reported where it is built
+        if constructor_types(hydra.utils.get_class(node["_target_"])) is None:
+            continue  # **kwargs all the way: any key is taken
+        args = set(constructor_args(node))
+        allowed = args | INSTANTIATE_KEYS | _NOT_PASSED.get(path, set())
         for key in node:
             if key not in allowed:
                 close = difflib.get_close_matches(str(key), sorted(args), n=3, cutoff=0.6)
@@ -285,14 +65,6 @@ def _importable(node: dict) -> bool:
         return True
     except Exception:  # noqa: BLE001 (reported where it is built)
         return False
-
-
-def _takes_any_keyword(cls) -> bool:
-    try:
-        params = inspect.signature(cls).parameters.values()
-    except (TypeError, ValueError):
-        return True
-    return any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params)
 
 
 def _instantiated_nodes(tree: dict, path: str = ""):
@@ -321,66 +93,35 @@ def check_trainable(cfg: DictConfig) -> None:
         )
 
 
+def check_accelerator(cfg: DictConfig) -> None:
+    """A GPU asked for where torch finds none: Lightning's own error ("No supported gpu backend
+    found!") comes as a traceback, after the data has loaded."""
+    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
+
+    accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
+    wanted = {"gpu": (CUDAAccelerator, MPSAccelerator), "cuda": (CUDAAccelerator,),
+              "mps": (MPSAccelerator,)}.get(accelerator, ())  # fmt: skip
+    if not wanted or any(kind.is_available() for kind in wanted):
+        return
+    build = " (a CPU-only build)" if torch.version.cuda is None else ""
+    raise ConfigError(
+        f"trainer.accelerator={accelerator} asks for a GPU, and torch {torch.__version__}"
+        f"{build} finds none on this machine. Run on the CPU with trainer=cpu, or leave "
+        "trainer= out: trainer=default takes a GPU where there is one."
+    )
+
+
 def _require(ok: bool, message: str) -> None:
     if not ok:
         raise ConfigError(message)
-
-
-# The numbers training reads, which Hydra takes as given: a word (iterations=abc) would fail
-# inside a comparison below with a traceback, and int() would truncate iterations=1.5 to 1.
-_WHOLE_NUMBERS = (
-    "iterations",
-    "val_every",
-    "seed",
-    "checkpoint_every",
-    "media_every",
-    "data.batch_size",
-    "data.future_len",
-    "data.observed_len",
-    "model.net.C",
-    "model.lr_decay_every",
-    "sampling.steps",
-)
-_NUMBERS = (
-    "progress_every_s",
-    "model.optimizer.lr",
-    "model.lambda_2",
-    "model.lr_decay_gamma",
-    "model.grad_clip_norm",
-    "adversarial.optimizer.lr",
-    "adversarial.lambda_adv",
-    "adversarial.lambda_2",
-    "sampling.eta",
-    "sampling.start",
-    "sampling.end",
-    "sampling.k",
-)
-
-
-def check_number_types(
-    cfg: DictConfig,
-    whole_numbers: tuple[str, ...],
-    numbers: tuple[str, ...] = (),
-    optional: bool = True,
-) -> None:
-    """Each of these keys holds a whole number, or a number (ConfigError if not); with
-    `optional`, a key that is unset or null is let through."""
-    for key in whole_numbers + numbers:
-        value = OmegaConf.select(cfg, key, default=None)
-        if value is None and optional:
-            continue
-        whole = isinstance(value, int) and not isinstance(value, bool)
-        if key in whole_numbers:
-            _require(whole, f"{key}={value!r} must be a whole number.")
-        else:
-            _require(whole or isinstance(value, float), f"{key}={value!r} must be a number.")
 
 
 def validate_train_config(cfg: DictConfig) -> None:
     """Out-of-range values are rejected here, naming the allowed range."""
     check_trainable(cfg)  # first: a baseline's config lacks what the checks below read
     check_constructor_keys(cfg)
-    check_number_types(cfg, _WHOLE_NUMBERS, _NUMBERS)
+    check_types(cfg, TrainConfig)  # then the comparisons below compare numbers
+    check_accelerator(cfg)
     _require(cfg.iterations > 0, f"iterations={cfg.iterations} must be a positive integer.")
     seed = cfg.get("seed")
     if seed is not None:  # Lightning's seed_everything would raise numpy's range error
@@ -389,11 +130,6 @@ def validate_train_config(cfg: DictConfig) -> None:
     if every is not None:
         # A negative period divides every iteration: last.ckpt would be written at each one.
         _require(every >= 0, f"checkpoint_every={every} must be >= 0 iterations (0: off).")
-    compile_on = cfg.get("compile", {}).get("enabled", "auto")
-    _require(
-        compile_on in (True, False, "auto"),
-        f"compile.enabled={compile_on!r}: use true, false or auto (on a CUDA device).",
-    )
     _require(cfg.val_every > 0, f"val_every={cfg.val_every} must be a positive integer.")
     _require(cfg.data.batch_size > 0, f"data.batch_size={cfg.data.batch_size} must be > 0.")
     _require(cfg.data.future_len >= 1, f"data.future_len={cfg.data.future_len} must be >= 1 frame.")
@@ -438,19 +174,16 @@ def validate_train_config(cfg: DictConfig) -> None:
     if sampling.get("k") is not None:
         _require(sampling.k >= 1, f"sampling.k={sampling.k} must be >= 1.")
     _check_protocol("data.eval_protocol", cfg.data.get("eval_protocol"))
-    _check_dim_rule(cfg)
 
 
-def validate_eval_config(cfg: DictConfig) -> None:
-    """The evaluation settings that do not come from a checkpoint."""
+def validate_eval_config(cfg: DictConfig, schema: type = EvalConfig) -> None:
+    """The evaluation settings that do not come from a checkpoint (src.visualize's, with its
+    own `schema`)."""
     check_constructor_keys(cfg)
-    _check_dim_rule(cfg)
-    _check_protocol("protocol", cfg.get("protocol"))
-
-
-def _check_dim_rule(cfg: DictConfig) -> None:
-    rule = cfg.metrics.dim_rule
-    _require(rule in ("future", "window"), f"metrics.dim_rule={rule!r}: use future or window.")
+    check_types(cfg, schema)
+    check_accelerator(cfg)
+    if cfg.get("data") is not None:
+        _check_protocol("data.eval_protocol", cfg.data.get("eval_protocol"))
 
 
 def _check_protocol(key: str, protocol: str | None) -> None:
