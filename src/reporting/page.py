@@ -17,7 +17,7 @@ from pathlib import Path
 from src.lit.factory import git_commit
 from src.reporting.claims import ABLATIONS, claims_section
 from src.reporting.plots import Curve, horizon_panels
-from src.reporting.published import known_slips
+from src.reporting.published import known_slips, published_beside
 from src.reporting.runs import Group
 from src.reporting.tables import SeedTable, Stat, fmt, printed_scope, table_from_dict
 from src.reporting.verdicts import (
@@ -27,6 +27,7 @@ from src.reporting.verdicts import (
     SELECTIONS,
     TARGETS,
     Reference,
+    beyond,
     comparison_lines,
     gap_lines,
     judge,
@@ -173,14 +174,7 @@ def _reference_row(group: Group, reference: Reference, protocol: str, target) ->
         cells.append(f"{same[ms]:.2f} ({gaps})")
     verdict = "-"
     if target is not None:
-        missed = {
-            s: [
-                ms
-                for ms in HORIZONS
-                if ms in same and ms in ours[s] and abs(printed_gap(ours[s][ms], same[ms])) > target
-            ]
-            for s in SELECTIONS
-        }
+        missed = {s: beyond(ours[s], same, target) for s in SELECTIONS}
         verdict = _reference_verdict(missed, target)
     return f"|  |  | {name} | | " + " | ".join(cells) + f" | {verdict} |"
 
@@ -248,7 +242,6 @@ def summary_table(groups: list[Group], baselines: list[dict], metric: str, proto
         "|---|---|---|---:|---:|" + "---:|" * len(HORIZONS),
     ]
     for group in groups:
-        table = None
         for selection in SELECTIONS:
             table = seed_table(group, selection, protocol, metric)
             if selection == "best":
@@ -288,8 +281,6 @@ def summary_table(groups: list[Group], baselines: list[dict], metric: str, proto
 
 def _published_of(table: dict, dataset: str) -> dict[str, dict[int, float]] | None:
     """A stored result table's published values (ms keys back to int), if on their dataset."""
-    from src.reporting.published import published_beside
-
     published = published_beside(table, dataset)
     if not published:
         return None
