@@ -376,7 +376,8 @@ def target_paragraph(
     text = (
         "**Reproduction target.** A trained row reproduces its paper when its average is within "
         f"the target of the published same-set average at every published horizon ({goal} "
-        f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints. "
+        f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints, against the "
+        "reference its verdict names. "
     )
     unjudged = [
         g.label for g in checked if judge(g, protocol, targets[g.dataset]).status == "not judged"
@@ -430,7 +431,9 @@ def _per_action(group: Group, protocol: str, metric: str) -> list[str]:
         lines += [seed_table(group, selection, protocol, metric).to_markdown(), ""]
     if metric == "euler":
         for reference in references(group)[1:]:
-            lines += [seed_table(group, "best", protocol, metric, reference).to_markdown(), ""]
+            table = seed_table(group, "best", protocol, metric, reference)
+            table.title += f", beside {reference.name}"
+            lines += [table.to_markdown(), ""]
     return lines
 
 
@@ -496,6 +499,11 @@ def build_page(
         ]
     lines += ["## Provenance", ""]
     lines += [provenance_table(groups, baselines), ""]
+    lines += [
+        "Run folders are named relative to the folder that holds them all (the project's, for "
+        "runs under its outputs/).",
+        "",
+    ]
     everyone = [r for g in groups for r in g.runs] + baselines
     missing = sorted({m for e in everyone for m in e.get("missing_files") or []})
     if missing:
