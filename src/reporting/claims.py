@@ -89,7 +89,9 @@ def claims() -> list[Claim]:
             "The 2x7 kernel (Table 6)",
             "The 2x7 kernel (2 frames by 7 pose dimensions) is the best choice: a square 4x4 "
             f"kernel gives {_row(6, 'kernel_4x4')} and a 7x2 kernel {_row(6, 'kernel_7x2')}, "
-            f"against {_row(6, 'kernel_2x7')} for 2x7 ({ms}).",
+            f"against {_row(6, 'kernel_2x7')} for 2x7 ({ms}). Which of the 4x4 and 7x2 rows "
+            "is which is read from a scrambled text of the table (shared "
+            "docs/published_results.md); 2x7's is certain.",
             (
                 ("li2018_h36m_kernel_4x4", FULL, _paper(6, "kernel_4x4", "kernel_2x7")),
                 ("li2018_h36m_kernel_7x2", FULL, _paper(6, "kernel_7x2", "kernel_2x7")),
@@ -178,11 +180,14 @@ def seed_spread(group: Group, selection: str, protocol: str) -> dict[int, float]
     }
 
 
+def where(horizons: list[int]) -> str:
+    return ", ".join(str(ms) for ms in horizons) + " ms"
+
+
 def _verdict(claim: Claim, delta: dict[int, float], spread: dict[int, float] | None) -> str:
     horizons = [ms for ms in claim.horizons if ms in delta]
     if not horizons:
         return "no common horizon"
-    where = lambda hs: ", ".join(f"{ms}" for ms in hs) + " ms"  # noqa: E731
     clear = [ms for ms in horizons if spread is not None and abs(delta[ms]) > spread.get(ms, 0)]
     if claim.expect == "no gain":
         gains = [ms for ms in clear if delta[ms] > 0]
