@@ -9,24 +9,23 @@ from pathlib import Path
 import pytest
 import yaml
 
-from src.report import (
-    build_page,
-    comparison_lines,
+from src.report import main, replace_block
+from src.reporting.evaluation import evaluate_run
+from src.reporting.page import build_page, readme_block, summary_table
+from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
+from src.reporting.runs import (
     discover_runs,
-    evaluate_run,
     find_checkpoints,
-    gap_lines,
     group_runs,
-    main,
-    missed_targets,
     parse_notes,
-    readme_block,
-    replace_block,
-    summary_table,
+)
+from src.reporting.tables import AVERAGE, ResultTable, same_set_average
+from src.reporting.verdicts import (
+    comparison_lines,
+    gap_lines,
+    missed_targets,
     training_data_line,
 )
-from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
-from src.reporting.tables import AVERAGE, ResultTable, same_set_average
 
 
 def test_replace_block_rewrites_only_between_markers(tmp_path):
@@ -78,7 +77,14 @@ def test_report_from_a_short_run(train_cfg, tmp_path, synthetic_data_dir, monkey
     run_avg = group["runs"][0]["results"]["best"]["srnn"]["tables"][0]["average"]["values"]
     # The page shows exactly what the evaluation computed.
     assert f"{run_avg['80']:.2f}" in page
-    assert "| gru_s2s_synthetic |" in readme.read_text()
+    # The headline opens the page and is the README block, with the figure beside the page.
+    lines = page.splitlines()
+    assert next(k for k, line in enumerate(lines) if line.startswith("| experiment |")) < 30
+    assert "![Average Euler error against horizon" in page and "(results_errors.png)" in page
+    assert (tmp_path / "results_errors.png").read_bytes()[:4] == b"\x89PNG"
+    block = readme.read_text().split("<!-- results:start -->\n")[1].split("<!-- results:end")[0]
+    assert "| gru_s2s_synthetic | synthetic | ours, best | 1 |" in block
+    assert len(block.splitlines()) <= 25 and "(results_errors.png)" in block
 
 
 # --- finding runs and their checkpoints -----------------------------------------------------
@@ -144,7 +150,9 @@ def test_unfinished_run_falls_back_and_says_so(tmp_path):
 def test_a_run_without_a_best_checkpoint_is_not_said_to_have_its_lowest_error_at_the_end(
     tmp_path, monkeypatch
 ):
-    monkeypatch.setattr("src.report.evaluate", lambda overrides, out_dir: {"overrides": overrides})
+    monkeypatch.setattr(
+        "src.reporting.evaluation.evaluate", lambda overrides, out_dir: {"overrides": overrides}
+    )
     run = make_run(tmp_path / "run", summary={"best_checkpoint": ""})
     checkpoints, notes = find_checkpoints(run)
     record = {
@@ -214,11 +222,19 @@ def test_seeds_are_grouped_and_other_differences_are_not():
     # A run resumed from a checkpoint is a seed of its experiment like any other.
     runs[1]["config"].update(resume="/runs/li2018_h36m_2", ckpt_path="/runs/x/last.ckpt")
     groups = group_runs(runs)
-    assert [(g.label, g.dataset, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
+    assert [(g.full_label, g.dataset, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
         ("li2018_h36m (adversarial.reference_fake_slot=False)", "h36m", [1, 2]),
         ("li2018_cmu", "cmu", [1, 2]),
         ("li2018_h36m (adversarial.reference_fake_slot=True)", "h36m", [3, 4]),
     ]
+    # Short labels for the tables: the paper's setting is the plain name, the reference code's
+    # switch is named in words; the settings themselves go to a footnote.
+    assert [g.label for g in groups] == [
+        "li2018_h36m",
+        "li2018_cmu",
+        "li2018_h36m, reference-code switches",
+    ]
+    assert groups[2].settings == {"adversarial.reference_fake_slot": True}
 
 
 def test_trainer_precision_makes_another_setting_not_a_seed():
@@ -227,10 +243,11 @@ def test_trainer_precision_makes_another_setting_not_a_seed():
     runs = [{"config": _config(seed=s)} for s in (1, 2)]
     runs[1]["config"]["trainer"]["precision"] = "bf16-mixed"
     groups = group_runs(runs)
-    assert [(g.label, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
+    assert [(g.full_label, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
         ("li2018_h36m (trainer.precision=None)", [1]),
         ("li2018_h36m (trainer.precision=bf16-mixed)", [2]),
     ]
+    assert [g.label for g in groups] == ["li2018_h36m", "li2018_h36m, precision=bf16-mixed"]
 
 
 def test_progress_and_compile_settings_do_not_split_seeds():
@@ -331,8 +348,20 @@ def test_page_reports_best_and_last_as_mean_and_std_over_seeds():
     assert "`h3.6m/dataset/S5/waiting_1.txt`" in page
     assert not re.search(r"\bnan\b", page.lower())
 
-    block = readme_block(groups, [], "srnn", "a budget")
-    assert rows[2] in block and "Budget: a budget" in block
+    # The headline, first on the page and the README block: ours at both checkpoints, the
+    # published same-set average with ours minus it (best, last), and the verdict.
+    headline = (
+        "| li2018_h36m | h36m | ours, best | 3 | 0.40 ± 0.02 | 0.48 ± 0.02 | 0.64 ± 0.02 | "
+        "0.72 ± 0.02 | 0.88 ± 0.02 | 1.32 ± 0.02 |"
+    )
+    published = (
+        f"|  |  | Li et al. conv_s2s, 11 actions | | {same[80]:.2f} "
+        f"({0.40 - same[80]:+.2f}, {0.48 - same[80]:+.2f}) |"
+    )
+    assert headline in page and published in page
+    assert page.index(headline) < page.index("**Budget.**") < page.index("## Provenance")
+    block = readme_block(groups, "srnn")
+    assert headline in block and published in block and "Budget" not in block
 
 
 def test_ablation_rows_get_their_own_published_average_not_the_full_models():
@@ -441,11 +470,23 @@ def test_target_paragraph_names_the_rows_that_miss_with_their_notes():
         {"h36m": 0.03, "cmu": 0.05},
         {"li2018_cmu": "washwindow has no training files"},
     )
-    assert "at commit abc1234;" in page
+    assert "at commit abc1234 " in page
     assert "Rows that miss it: li2018_cmu (washwindow has no training files)." in page
     assert "- Note: washwindow has no training files" in page
-    block = readme_block(groups, [], "srnn", None, "abc1234", {"h36m": 0.03, "cmu": 0.05})
-    assert "at commit abc1234." in block and "li2018_cmu (no explanation given)" in block
+    unexplained = build_page(groups, [], ["srnn"], "cmd", None, "abc1234", {"cmu": 0.05})
+    assert "li2018_cmu (no explanation given)" in unexplained
+    # The README block is the headline: the verdict per row, the notes stay on the page.
+    block = readme_block(groups, "srnn", "abc1234", {"h36m": 0.03, "cmu": 0.05})
+    assert "at commit abc1234." in block and "washwindow" not in block
+    verdicts = [
+        line.split(" | ")[-1].removesuffix(" |")
+        for line in block.splitlines()
+        if "| ours, best |" in line
+    ]
+    assert verdicts == [
+        "**reproduces**, judged against Li et al. conv_s2s",
+        "**misses**, judged against Li et al. conv_s2s",
+    ]
     assert "Every trained row" in build_page(
         groups[:1], [], ["srnn"], "cmd", None, "abc1234", {"h36m": 0.03}
     )
@@ -506,7 +547,7 @@ def test_published_rows_that_include_a_slip_of_the_paper_are_flagged():
 
 
 def test_report_refuses_a_note_for_an_unknown_experiment_before_evaluating(tmp_path, monkeypatch):
-    monkeypatch.setattr("src.report.checkpoint_facts", lambda path: (1, []))
+    monkeypatch.setattr("src.reporting.runs.checkpoint_facts", lambda path: (1, []))
     monkeypatch.setattr("src.report.evaluate_run", pytest.fail)  # refused before evaluating
     make_run(tmp_path / "run", summary={"iterations": 1})
     with pytest.raises(SystemExit, match="--note 'li2018_cmu=why'.*one of the runs.*li2018_h36m"):
@@ -536,8 +577,8 @@ def test_settings_of_one_experiment_are_compared_on_their_common_horizons():
         [offset_run(0.01), switched, other_actions, slightly_better, offset_run(0.02, "li2018_cmu")]
     )
     lines = comparison_lines(groups, "srnn")
-    base = "li2018_h36m (adversarial.reference_fake_slot=False, iterations=4000)"
-    on = "li2018_h36m (adversarial.reference_fake_slot=True, iterations=4000)"
+    base = "li2018_h36m, iterations=4000"
+    on = "li2018_h36m, reference-code switches, iterations=4000"
     assert lines[0] == (
         f"- {on} minus {base}, best (test-selected) (seeds: 1 and 1): 80 ms +0.04, "
         "160 ms +0.04, 320 ms +0.04, 400 ms +0.04, 560 ms +0.00, 1000 ms +0.04."

@@ -349,3 +349,46 @@ def error_vs_horizon(
         ax.set_title(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+class Curve(NamedTuple):
+    """One line of a horizon panel: {ms: value}, an optional ± band {ms: std}, a colour index
+    (lines of one experiment share it) and a matplotlib line style."""
+
+    label: str
+    values: dict[int, float]
+    std: dict[int, float] | None = None
+    color: int = 0
+    style: str = "-"
+
+
+def horizon_panels(
+    panels: Sequence[tuple[str, Sequence[Curve]]], ylabel: str = "Euler-angle error (rad)"
+) -> Figure:
+    """Error against prediction horizon, one panel per (title, curves) side by side, as Li et
+    al. (2018) Figure 4; a curve with `std` gets a shaded ± band."""
+    if not panels:
+        raise ValueError("horizon_panels: no panels given")
+    fig = Figure(figsize=(5.0 * len(panels), 3.8), dpi=100)
+    for k, (title, curves) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1)
+        ticks: set[int] = set()
+        for curve in curves:
+            ms = sorted(curve.values)
+            ticks.update(ms)
+            color = f"C{curve.color % 10}"
+            values = [curve.values[m] for m in ms]
+            ax.plot(ms, values, curve.style, marker="o", ms=3, color=color, label=curve.label)
+            if curve.std:
+                low = [curve.values[m] - curve.std.get(m, 0.0) for m in ms]
+                high = [curve.values[m] + curve.std.get(m, 0.0) for m in ms]
+                ax.fill_between(ms, low, high, color=color, alpha=0.15, lw=0)
+        ax.set_xticks(sorted(ticks))
+        ax.set_xlabel("prediction horizon (ms)")
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    return fig

@@ -138,7 +138,10 @@ def published_beside(table: dict, dataset: str) -> dict | None:
 KNOWN_SLIPS: dict[tuple[str, str], dict[str, str]] = {
     ("li2018", "lstm3lr"): {"smoking": "Li Table 1 repeats SRNN's smoking row"},
     ("martinez2017", "residual_sup_ma"): {
-        "smoking": "Martinez Table 1's smoking row repeats the eating row"
+        "smoking": "Martinez Table 1's smoking row repeats the eating row",
+        "phoning": "Martinez Table 2's phoning row (0.23 0.43 0.69 0.82 at 80-400 ms) is a third "
+        "to a half of Li et al.'s retraining of the same model (RRNN, Li Table 2: 0.62 1.10 "
+        "1.54 1.70) and of Li's own model (0.59 1.13 1.51 1.65); most likely a slip",
     },
     ("martinez2017", "zero_velocity"): {
         "greeting": "Martinez Table 2's greeting and phoning rows are equal and neither matches "

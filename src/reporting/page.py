@@ -1,0 +1,594 @@
+"""The results page (docs/results.md) and the README's Results block: layout only.
+
+The page opens with the headline: one table of each trained experiment (ours, best and last
+checkpoints, mean ± std over seeds; each published reference's same-set average with ours
+minus it; the verdict), its footnotes and a figure of error against horizon. Then the budget
+and how to read the numbers, the ablation claims, the settings compared, provenance, the
+per-action tables of the papers' protocol, the other protocols, MPJPE and the command. The
+README block is the headline alone. What the numbers mean is decided in verdicts.py and
+claims.py; this file only lays them out.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+from src.lit.factory import git_commit
+from src.reporting.claims import ABLATIONS, claims_section
+from src.reporting.plots import Curve, horizon_panels
+from src.reporting.published import known_slips, published_beside
+from src.reporting.runs import Group
+from src.reporting.tables import SeedTable, Stat, fmt, printed_scope, table_from_dict
+from src.reporting.verdicts import (
+    HORIZONS,
+    PROTOCOLS,
+    SELECTION_LABELS,
+    SELECTIONS,
+    TARGETS,
+    Reference,
+    beyond,
+    comparison_lines,
+    gap_lines,
+    judge,
+    mean_average,
+    missed_targets,
+    printed_gap,
+    references,
+    seed_table,
+    signed,
+    slip_lines,
+    training_data_line,
+)
+
+SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
+ABLATIONS_HEADING = "Ablations"
+
+
+def _mark(n: int) -> str:
+    return str(n).translate(SUPERSCRIPTS)
+
+
+def _range(values: list[int | None]) -> str:
+    known = sorted({v for v in values if v is not None})
+    if not known:
+        return "-"
+    if len(known) == 1:
+        return f"{known[0]:,}"
+    return f"{known[0]:,}–{known[-1]:,}"
+
+
+def _stat_cells(average: dict[int, Stat] | None, decimals: int) -> list[str]:
+    average = average or {}
+    return [average[ms].format(decimals) if ms in average else "-" for ms in HORIZONS]
+
+
+def _ms_list(horizons: list[int]) -> str:
+    return ", ".join(str(ms) for ms in horizons) + " ms"
+
+
+# ---------------------------------------------------------------------------- the headline
+def headline_groups(groups: list[Group]) -> list[Group]:
+    """The groups of the headline: all but Li et al.'s ablations, which have their section
+    (and all of them when nothing else was trained)."""
+    return [g for g in groups if g.run_name not in ABLATIONS] or list(groups)
+
+
+def _reference_verdict(missed: dict[str, list[int]], target: float) -> str:
+    if not any(missed.values()):
+        return f"within {target:.2f}"
+    if missed["best"] == missed["last"]:
+        return f"beyond {target:.2f} at {_ms_list(missed['best'])}"
+    return f"beyond {target:.2f}: " + "; ".join(
+        f"{s} {_ms_list(missed[s])}" for s in SELECTIONS if missed[s]
+    )
+
+
+def headline_table(
+    groups: list[Group], protocol: str, targets: dict[str, float], ablations_link: str | None
+) -> tuple[list[str], list[str]]:
+    """(table lines, footnote lines) of the headline."""
+    horizons = " | ".join(f"{ms} ms" for ms in HORIZONS)
+    lines = [
+        f"| experiment | data | row | n | {horizons} | verdict |",
+        "|---|---|---|---:|" + "---:|" * len(HORIZONS) + "---|",
+    ]
+    footnotes: list[str] = []
+
+    def footnote(text: str) -> str:
+        if text not in footnotes:
+            footnotes.append(text)
+        return _mark(footnotes.index(text) + 1)
+
+    for group in headline_groups(groups):
+        target = targets.get(group.dataset)
+        verdict = judge(group, protocol, target)
+        label = group.label
+        if group.settings:
+            settings = ", ".join(f"{k}={v}" for k, v in group.settings.items())
+            label += footnote(f"{group.label}: {settings}.")
+        tables = {s: seed_table(group, s, protocol, "euler") for s in SELECTIONS}
+        for selection in SELECTIONS:
+            table = tables[selection]
+            if selection == "best":
+                text = _verdict_text(group, verdict, footnote)
+                first = [label, group.dataset]
+            else:
+                text, first = "", ["", ""]
+            lines.append(
+                f"| {' | '.join(first)} | ours, {selection} | {table.n} | "
+                + " | ".join(_stat_cells(table.average(), 2))
+                + f" | {text} |"
+            )
+        for reference in references(group):
+            lines.append(_reference_row(group, reference, protocol, target))
+    notes = [f"{_mark(k + 1)} {text}" for k, text in enumerate(footnotes)]
+    ablations = [g for g in groups if g.run_name in ABLATIONS]
+    if ablations and ablations_link and len(headline_groups(groups)) < len(groups):
+        notes.append(
+            f"Li et al.'s ablations ({len(ablations)} trained rows: Tables 5 and 6, Figure 4) "
+            f"are compared with li2018_h36m, claim by claim, under [{ABLATIONS_HEADING}]"
+            f"({ablations_link})."
+        )
+    return lines, notes
+
+
+def _verdict_text(group: Group, verdict, footnote) -> str:
+    if verdict.status == "not judged":
+        return f"not judged ({verdict.why})"
+    if verdict.reference is None:
+        return verdict.status
+    chosen = verdict.reference
+    text = f"**{verdict.status}**, judged against {chosen.name}"
+    if len(references(group)) > 1:
+        about = f" ({chosen.about})" if chosen.about else ""
+        text += footnote(f"{group.label}: judged against {chosen.name}{about}: {verdict.why}.")
+    return text
+
+
+def _reference_row(group: Group, reference: Reference, protocol: str, target) -> str:
+    best = seed_table(group, "best", protocol, "euler", reference)
+    last = seed_table(group, "last", protocol, "euler", reference)
+    same = best.published_same_set()
+    ours = {s: mean_average(t) for s, t in (("best", best), ("last", last))}
+    name = f"{reference.name}, {len(best.evaluated)} actions"
+    slips = known_slips(reference.key, best.evaluated)
+    if slips:
+        name += f" incl. slips ({', '.join(slips)})"
+    if not same:
+        printed = best.published_as_printed()
+        cells = [fmt(printed.get(ms), 2) for ms in HORIZONS]
+        return (
+            f"|  |  | {reference.name}, as printed ({printed_scope(reference.published)}) | | "
+            + " | ".join(cells)
+            + " | no same-set value: not judged |"
+        )
+    cells = []
+    for ms in HORIZONS:
+        if ms not in same:
+            cells.append("-")
+            continue
+        gaps = ", ".join(
+            signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS if ms in ours[s]
+        )
+        cells.append(f"{same[ms]:.2f} ({gaps})")
+    verdict = "-"
+    if target is not None:
+        missed = {s: beyond(ours[s], same, target) for s in SELECTIONS}
+        verdict = _reference_verdict(missed, target)
+    return f"|  |  | {name} | | " + " | ".join(cells) + f" | {verdict} |"
+
+
+def headline(
+    groups: list[Group],
+    protocol: str,
+    targets: dict[str, float],
+    figure: str | None,
+    ablations_link: str | None,
+    intro: str,
+) -> list[str]:
+    """The headline's lines: intro, legend, table, footnotes and figure."""
+    goal = ", ".join(f"{t:.2f} rad on {d}" for d, t in targets.items())
+    table, notes = headline_table(groups, protocol, targets, ablations_link)
+    lines = [
+        intro,
+        "",
+        "Ours: mean ± std over n seeds, best checkpoint (selected on the test windows, as the "
+        "papers did) and last. Published: the paper's average over the same actions (ours minus "
+        f"it: best, last). Reproduces: both within {goal} at every published horizon.",
+        "",
+        *table,
+        "",
+    ]
+    if notes:  # one list: no blank line between footnotes
+        lines += [f"- {note}" for note in notes] + [""]
+    if figure:
+        lines += [f"![Average Euler error against horizon, ours and published]({figure})", ""]
+    return lines
+
+
+def headline_figure(groups: list[Group], protocol: str):
+    """Error against horizon, one panel per dataset: ours (best, mean ± std over seeds; last
+    dotted) and each published same-set average (dashed), per headline experiment."""
+    panels: dict[str, list[Curve]] = {}
+    for k, group in enumerate(headline_groups(groups)):
+        curves = panels.setdefault(group.dataset, [])
+        for selection, style in (("best", "-"), ("last", ":")):
+            average = seed_table(group, selection, protocol, "euler").average() or {}
+            values = {ms: s.mean for ms, s in average.items()}
+            std = {ms: s.std for ms, s in average.items() if s.std is not None}
+            if values:
+                curves.append(
+                    Curve(f"{group.label}, ours {selection}", values, std or None, k, style)
+                )
+        for j, reference in enumerate(references(group)):
+            same = seed_table(group, "best", protocol, "euler", reference).published_same_set()
+            if same:
+                curves.append(Curve(reference.name, same, None, k, "--" if j == 0 else "-."))
+    panels = {d: c for d, c in panels.items() if c}
+    if not panels:
+        return None
+    where = PROTOCOLS.get(protocol, protocol)
+    return horizon_panels([(f"{d}: {where}", c) for d, c in panels.items()])
+
+
+# ---------------------------------------------------------------------------- tables below
+def summary_table(groups: list[Group], baselines: list[dict], metric: str, protocol: str) -> str:
+    decimals = 2 if metric == "euler" else 1
+    lines = [
+        "| experiment | dataset | checkpoint | seeds | iterations | "
+        + " | ".join(f"{h} ms" for h in HORIZONS)
+        + " |",
+        "|---|---|---|---:|---:|" + "---:|" * len(HORIZONS),
+    ]
+    for group in groups:
+        for selection in SELECTIONS:
+            table = seed_table(group, selection, protocol, metric)
+            if selection == "best":
+                best = _range([r["iterations_of"]["best"] for r in group.runs])
+                iterations = f"{best} of {_range([r['iterations'] for r in group.runs])}"
+            else:
+                iterations = _range([r["iterations"] for r in group.runs])
+            lines.append(
+                f"| {group.label} | {group.dataset} | {SELECTION_LABELS[selection]} | "
+                f"{table.n} | {iterations} | "
+                + " | ".join(_stat_cells(table.average(), decimals))
+                + " |"
+            )
+        if metric == "euler":
+            for reference in references(group):
+                table = seed_table(group, "best", protocol, metric, reference)
+                lines += _published_rows(group.label, group.dataset, table)
+    for entry in baselines:
+        result = entry["results"][protocol]
+        table_dict = result["tables"][0 if metric == "euler" else 1]
+        published = _published_of(table_dict, entry["dataset"]) if metric == "euler" else None
+        table = SeedTable(
+            entry["label"],
+            [table_from_dict(table_dict)],
+            published,
+            table_dict.get("published_label"),
+        )
+        lines.append(
+            f"| {entry['label']} | {entry['dataset']} | - | - | - | "
+            + " | ".join(_stat_cells(table.average(), decimals))
+            + " |"
+        )
+        if table.published is not None:
+            lines += _published_rows(entry["label"], entry["dataset"], table)
+    return "\n".join(lines)
+
+
+def _published_of(table: dict, dataset: str) -> dict[str, dict[int, float]] | None:
+    """A stored result table's published values (ms keys back to int), if on their dataset."""
+    published = published_beside(table, dataset)
+    if not published:
+        return None
+    return {a: {int(ms): float(v) for ms, v in row.items()} for a, row in published.items()}
+
+
+def _published_rows(label: str, dataset: str, table: SeedTable) -> list[str]:
+    rows = []
+    same, printed = table.published_same_set(), table.published_as_printed()
+    name = table.published_label or "published"
+    slips = known_slips(table.published_label, table.evaluated)
+    flag = f" (includes slips of the paper: {', '.join(slips)})" if slips else ""
+    for text, values in (
+        (f"published ({name}), same {len(table.evaluated)} actions{flag}", same),
+        (f"published ({name}), as printed ({printed_scope(table.published)})", printed),
+    ):
+        if values:
+            rows.append(
+                f"| {label}: {text} | {dataset} | paper | - | paper | "
+                + " | ".join(fmt(values.get(ms), 2) for ms in HORIZONS)
+                + " |"
+            )
+    return rows
+
+
+def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
+    lines = [
+        "| experiment | seed | run folder | commit | iterations | best at | wall time | device "
+        "| data archive (sha256) | missing files | notes |",
+        "|---|---:|---|---|---:|---:|---:|---|---|---|---|",
+    ]
+    for group in groups:
+        for r in group.runs:
+            missing = r.get("missing_files") or []
+            wall = r.get("wall_time_s")
+            lines.append(
+                f"| {group.label} | {r['seed']} | `{r['path']}` | {r.get('commit') or '-'} | "
+                f"{_range([r['iterations']])} | {_range([r['iterations_of']['best']])} | "
+                f"{'-' if wall is None else f'{wall / 60:.1f} min'} | {r.get('device') or '-'} | "
+                f"{r.get('archive_sha256', '-')} | "
+                f"{f'{len(missing)} (see below)' if missing else 'none'} | "
+                f"{'; '.join(r['notes']) or '-'} |"
+            )
+    for e in baselines:
+        missing = e.get("missing_files") or []
+        missing_txt = f"{len(missing)} (see below)" if missing else "none"
+        lines.append(
+            f"| {e['label']} (baseline) | - | - | {e.get('commit', '-')} | - | - | - | - | "
+            f"{e.get('archive_sha256', '-')} | {missing_txt} | - |"
+        )
+    return "\n".join(lines)
+
+
+def how_to_read(groups: list[Group]) -> list[str]:
+    seeds = "; ".join(
+        f"{g.label} ({g.dataset}): {len(g.runs)} seed{'s' if len(g.runs) != 1 else ''} "
+        f"({', '.join(str(r['seed']) for r in g.runs)})"
+        for g in groups
+    )
+    lines = [
+        f"**Seeds.** {seeds or 'no training runs'}. A trained model's cell is the mean ± the "
+        "sample standard deviation (n - 1) over its seeds; without ±, one seed. The average "
+        "row's ± is that of the per-seed averages.",
+        "",
+    ]
+    left_out = [line for g in groups for line in g.left_out]
+    if left_out:
+        lines += ["**Identical runs counted once.** " + "; ".join(left_out) + ".", ""]
+    lines += [
+        "**Checkpoints.** *best (test-selected)*: the lowest average Euler error at a validation "
+        "during training, on the test windows, as both reference implementations and the "
+        "papers (protocol section 8): this selection uses test information and is optimistic. "
+        "*last (no test info)*: the final iteration, chosen without looking at the test windows.",
+        "",
+        "**Published values.** The paper's average recomputed from its per-action values over "
+        "the actions evaluated here ('same N actions': like for like when this data copy lacks "
+        "some), and as printed, over all of its actions. Li et al.'s Tables 5 and 6 print "
+        "averages only, so they have no same-set value.",
+        "",
+    ]
+    return lines
+
+
+def target_paragraph(
+    groups: list[Group], protocol: str, targets: dict[str, float], notes: dict[str, str]
+) -> list[str]:
+    """The reproduction target, which rows miss it, and the notes saying why."""
+    checked = [g for g in groups if g.dataset in targets]
+    if not checked:
+        return []
+    missed = missed_targets(checked, protocol, targets)
+    goal = ", ".join(f"{d} {t:.2f}" for d, t in targets.items())
+    text = (
+        "**Reproduction target.** A trained row reproduces its paper when its average is within "
+        f"the target of the published same-set average at every published horizon ({goal} "
+        f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints, against the "
+        "reference its verdict names. "
+    )
+    unjudged = [
+        g.label for g in checked if judge(g, protocol, targets[g.dataset]).status == "not judged"
+    ]
+    if unjudged:
+        text += (
+            "Not judged (their paper prints an average only, over all of its actions, so there "
+            f"is no same-set value): {', '.join(unjudged)}. "
+        )
+    if not missed:
+        text += "Every trained row with a published same-set average meets it."
+        return [text, ""]
+    text += "Rows that miss it: " + "; ".join(
+        f"{label} ({notes.get(label, 'no explanation given')})" for label in missed
+    )
+    return [text + ".", ""]
+
+
+def _group_section(
+    group: Group, protocol: str, target: float | None, notes: dict[str, str]
+) -> list[str]:
+    lines = [f"### {group.label} ({group.dataset})", ""]
+    if group.settings:
+        lines.append(
+            "- Settings: " + ", ".join(f"{k}={v}" for k, v in group.settings.items()) + "."
+        )
+    folders = ", ".join(f"seed {r['seed']}: `{r['path']}`" for r in group.runs)
+    lines += [
+        f"- Runs: {folders}.",
+        "- Best checkpoints at iteration(s) "
+        + ", ".join(_range([r["iterations_of"]["best"]]) for r in group.runs)
+        + f" of {_range([r['iterations'] for r in group.runs])}.",
+    ]
+    lines += [f"- {line}." for line in group.left_out]
+    for selection in SELECTIONS:
+        lines += gap_lines(group, selection, protocol, target)
+    line = training_data_line(group, protocol)
+    lines += ([line] if line else []) + slip_lines(group, protocol)
+    if group.label in notes:
+        lines.append(f"- Note: {notes[group.label]}")
+    lines.append("")
+    lines += _per_action(group, protocol, "euler")
+    return lines
+
+
+def _per_action(group: Group, protocol: str, metric: str) -> list[str]:
+    """The group's per-action tables: best and last, with the first reference; then the best
+    with each further reference."""
+    lines = []
+    for selection in SELECTIONS:
+        lines += [seed_table(group, selection, protocol, metric).to_markdown(), ""]
+    if metric == "euler":
+        for reference in references(group)[1:]:
+            table = seed_table(group, "best", protocol, metric, reference)
+            table.title += f", beside {reference.name}"
+            lines += [table.to_markdown(), ""]
+    return lines
+
+
+def _baseline_tables(baselines: list[dict], protocol: str, metric: str) -> list[str]:
+    lines = []
+    for entry in baselines:
+        table_dict = entry["results"][protocol]["tables"][0 if metric == "euler" else 1]
+        published = _published_of(table_dict, entry["dataset"]) if metric == "euler" else None
+        table = table_from_dict(table_dict, published, table_dict.get("published_label"))
+        lines += [
+            f"### {entry['label']} ({entry['dataset']}), {PROTOCOLS.get(protocol, protocol)}",
+            "",
+            table.to_markdown(),
+            "",
+        ]
+    return lines
+
+
+def _anchor(heading: str) -> str:
+    """GitHub's anchor of a heading made of words and spaces."""
+    return heading.lower().replace(" ", "-")
+
+
+def build_page(
+    groups: list[Group],
+    baselines: list[dict],
+    protocols: list[str],
+    command: str,
+    budget: str | None,
+    commit: str | None = None,
+    targets: dict[str, float] | None = None,
+    notes: dict[str, str] | None = None,
+    figure: str | None = None,
+) -> str:
+    targets = TARGETS if targets is None else targets
+    notes = notes or {}
+    first = protocols[0]
+    intro = (
+        f"Generated by `python -m src.report` on {dt.date.today()} at commit "
+        f"{commit or git_commit()} from the checkpoints of the runs under Provenance (the "
+        "command is at the end); do not edit by hand. Average Euler-angle error (radians) over "
+        f"the evaluated actions, {PROTOCOLS.get(first, first)}."
+    )
+    lines = ["# Results", ""]
+    lines += headline(groups, first, targets, figure, f"#{_anchor(ABLATIONS_HEADING)}", intro)
+    if budget:
+        lines += [f"**Budget.** {budget}", ""]
+    lines += how_to_read(groups)
+    lines += target_paragraph(groups, first, targets, notes)
+    lines += claims_section(groups, protocols, ABLATIONS_HEADING)
+    compared = comparison_lines(groups, first)
+    if compared:
+        lines += [
+            f"## Settings compared ({PROTOCOLS.get(first, first)})",
+            "",
+            "Runs of one experiment that differ in one setting: the average Euler error over the "
+            "evaluated actions (mean over seeds), the later row minus the first; negative means "
+            "the later setting has the lower error. With one seed a side, compare a difference "
+            "with the spread between seeds of the rows that have several.",
+            "",
+            *compared,
+            "",
+        ]
+    lines += ["## Provenance", ""]
+    lines += [provenance_table(groups, baselines), ""]
+    lines += [
+        "Run folders are named relative to the folder that holds them all (the project's, for "
+        "runs under its outputs/).",
+        "",
+    ]
+    everyone = [r for g in groups for r in g.runs] + baselines
+    missing = sorted({m for e in everyone for m in e.get("missing_files") or []})
+    if missing:
+        lines += [
+            f"The data copy lacks {len(missing)} file(s) of the full archives; training used what "
+            "exists (`data.allow_partial=true`) and actions without test files are shown as "
+            "absent: " + ", ".join(f"`{m}`" for m in missing),
+            "",
+        ]
+    # Per-action tables of the ablations on the papers' protocol only: elsewhere their averages
+    # (in the tables of averages) are what the claims use.
+    main = headline_groups(groups)
+    for k, protocol in enumerate(protocols):
+        where = PROTOCOLS.get(protocol, protocol)
+        lines += [
+            f"## {'Per-action tables' if k == 0 else 'Other protocol'}: {where}",
+            "",
+            "Averages over the evaluated actions (Euler-angle error, radians), with the baselines:",
+            "",
+            summary_table(groups, baselines, "euler", protocol),
+            "",
+        ]
+        for group in groups if k == 0 else main:
+            if k == 0:
+                lines += _group_section(group, protocol, targets.get(group.dataset), notes)
+            else:
+                lines += [f"### {group.label} ({group.dataset}), {where}", ""]
+                lines += _per_action(group, protocol, "euler")
+        lines += _baseline_tables(baselines, protocol, "euler")
+    lines += ["## MPJPE", "", "Mean per-joint position error: mm on H3.6M, skeleton units on CMU."]
+    lines.append("")
+    for protocol in protocols:
+        lines += [
+            f"Averages, {PROTOCOLS.get(protocol, protocol)}:",
+            "",
+            summary_table(groups, baselines, "mpjpe", protocol),
+            "",
+        ]
+    for protocol in protocols:
+        where = PROTOCOLS.get(protocol, protocol)
+        for group in main:
+            lines += [f"### {group.label} ({group.dataset}), MPJPE, {where}", ""]
+            lines += _per_action(group, protocol, "mpjpe")
+        lines += _baseline_tables(baselines, protocol, "mpjpe")
+    lines += ["## Command", "", f"`{command}`", ""]
+    return "\n".join(lines)
+
+
+def readme_block(
+    groups: list[Group],
+    protocol: str,
+    commit: str | None = None,
+    targets: dict[str, float] | None = None,
+    figure: str | None = None,
+    page: str = "docs/results.md",
+) -> str:
+    """The README's Results block: the page's headline, linking to the page for the rest."""
+    targets = TARGETS if targets is None else targets
+    intro = (
+        f"Generated by `python -m src.report` on {dt.date.today()} at commit "
+        f"{commit or git_commit()}. Average Euler error (rad) over the evaluated actions, "
+        f"{PROTOCOLS.get(protocol, protocol)}; budget, provenance, per-action tables, other "
+        f"protocols, MPJPE: [{page}]({page})."
+    )
+    lines = headline(
+        groups, protocol, targets, figure, f"{page}#{_anchor(ABLATIONS_HEADING)}", intro
+    )
+    return "\n".join(lines).rstrip("\n")
+
+
+def check_block(path: Path, name: str) -> str:
+    """The text of `path`, which must hold `<!-- name:start -->` and `<!-- name:end -->`."""
+    if not path.is_file():
+        raise SystemExit(f"error: {path} does not exist (it should hold the {name} markers)")
+    content = path.read_text()
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    if start not in content or end not in content:
+        raise SystemExit(f"error: {path} has no {start} ... {end} markers")
+    return content
+
+
+def replace_block(path: Path, name: str, text: str) -> None:
+    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`."""
+    content = check_block(path, name)
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    head, rest = content.split(start, 1)
+    _, tail = rest.split(end, 1)
+    path.write_text(f"{head}{start}\n{text}\n{end}{tail}")

@@ -1,0 +1,356 @@
+"""Finding finished training runs and grouping them into experiments (src.report).
+
+A run folder holds config.yaml beside checkpoints/ or summary.yaml (src.train's layout). Runs
+are grouped by experiment (run_name), dataset and configuration: runs of one group differ only
+in their seed. Two runs with the same configuration and the same seed (a run and a sweep job
+of the same settings, a copy, an unfinished run and its resume) are one seed: one is kept and
+the group says which.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from src.lit.factory import PROJECT_ROOT
+from src.lit.runs import COMPUTES
+
+# Config keys that do not make two runs different experiments: the seed, where files live,
+# the device, how often files are written or progress printed, and torch.compile (whose
+# dropout draws other masks than eager, of the same distribution, like another seed).
+# A resumed run is the run it continues: `resume` and `ckpt_path` name where it came from.
+IGNORED_KEYS = (
+    "seed",
+    "data.seed",
+    "ckpt_path",
+    "resume",
+    "checkpoint_every",
+    "media_every",
+    "progress_every_s",
+    "task_name",
+)
+IGNORED_PREFIXES = (
+    "paths.",
+    "trainer.",
+    "compile.",
+    "hydra.",
+    "data.data_dir",
+    "data.archive_dir",
+    "data.archive",
+    "data.num_workers",
+    "data.eval_batch_size",
+)
+# Settings named in words in a row's label when on (the paper's behaviour is off); any other
+# setting that tells two groups of one experiment apart is shown as `leaf=value`.
+SETTING_NAMES = {
+    "model.net.reference_eta_offset": "reference-code switches",
+    "adversarial.reference_fake_slot": "reference-code switches",
+}
+
+
+# ---------------------------------------------------------------------------- finding runs
+def is_run(folder: Path) -> bool:
+    """A training run's folder: config.yaml beside checkpoints/ or summary.yaml (a multirun's
+    .hydra/ folders also hold a config.yaml, but neither of the others)."""
+    return (folder / "config.yaml").is_file() and (
+        (folder / "checkpoints").is_dir() or (folder / "summary.yaml").is_file()
+    )
+
+
+def _natural(path: Path) -> list:
+    """Sort key ordering `2_x` before `10_x` (a multirun's job numbers)."""
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+
+
+def discover_runs(paths: list[Path]) -> list[Path]:
+    """The run folders given, or found under the folders given, in sweep order; each once."""
+    runs: list[Path] = []
+    for path in paths:
+        path = path.resolve()
+        if not path.exists():
+            raise SystemExit(f"error: {path} does not exist")
+        if is_run(path):
+            found = [path]
+        else:
+            found = sorted(
+                (
+                    p.parent
+                    for p in path.rglob("config.yaml")
+                    if ".hydra" not in p.parts and is_run(p.parent)
+                ),
+                key=_natural,
+            )
+            if not found:
+                raise SystemExit(
+                    f"error: no training run under {path}: a run folder holds config.yaml and "
+                    "checkpoints/ (is the run finished, and is this its folder?)"
+                )
+        runs += [r for r in found if r not in runs]
+    return runs
+
+
+def display_root(runs: list[Path]) -> Path:
+    """The folder the page names run folders relative to, so that it shows no machine's
+    absolute paths: the project for runs inside it (outputs/train/runs/...), else the runs'
+    common folder (for /x/out/<job>/train/runs/<name>/<time>: /x/out; for one run, the folder
+    two levels up)."""
+    runs = [Path(r).resolve() for r in runs]
+    if not runs:
+        return PROJECT_ROOT
+    if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
+        return PROJECT_ROOT
+    root = Path(os.path.commonpath(runs))
+    # One run, or runs nested in another: two levels up, so that each shows as something more
+    # than "." (<run_name>/<time> in src.train's layout).
+    if root in runs:
+        root = root.parent.parent
+    return root
+
+
+def _load_yaml(path: Path) -> dict | None:
+    return yaml.safe_load(path.read_text()) if path.is_file() else None
+
+
+def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
+    """({"best": path, "last": path}, notes) for a run folder.
+
+    best is summary.yaml's best_checkpoint: the lowest validation error of the whole run,
+    resumes included (it may lie in the folder of the run before a resume). When the run has
+    no summary (unfinished or killed) or that file is gone, the run's own best-*.ckpt (the
+    newest) stands in, and the notes say so. last is checkpoints/last.ckpt, the final iteration.
+    """
+    folder = run / "checkpoints"
+    notes: list[str] = []
+    summary = _load_yaml(run / "summary.yaml") or {}
+    last = folder / "last.ckpt"
+    best = None
+    recorded = summary.get("best_checkpoint")
+    if recorded:
+        recorded = Path(recorded)
+        # As written; relative to the project; or this folder's file of that name (a run folder
+        # that was moved or copied).
+        for candidate in (recorded, PROJECT_ROOT / recorded, folder / recorded.name):
+            if candidate.is_file():
+                best = candidate
+                break
+        else:
+            notes.append(f"best checkpoint {recorded.name} of summary.yaml not found")
+    elif not summary:
+        notes.append("no summary.yaml (run unfinished or killed?)")
+    if best is None:
+        local = sorted(folder.glob("best-*.ckpt"), key=lambda p: p.stat().st_mtime)
+        if local:
+            best = local[-1]
+            notes.append(f"best taken as this folder's {best.name}")
+    if not last.is_file():
+        last = None
+    if best is None and last is None:
+        raise SystemExit(f"error: {run} has no checkpoints (is it a finished training run?)")
+    if best is None:
+        notes.append("no best checkpoint: best is last.ckpt")
+    if last is None:
+        notes.append("no last.ckpt: last is the best checkpoint")
+    return {"best": best or last, "last": last or best}, notes
+
+
+def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
+    """The checkpoint's training iteration, and the files the run's data copy lacked when it
+    trained (training and test files; an evaluation of the checkpoint sees only the test
+    files). One read of the file for both.
+
+    The report's only direct use of the checkpoint loading API: the evaluations load their
+    checkpoints through src.eval."""
+    from src.lit.checkpoints import read_checkpoint
+
+    ckpt = read_checkpoint(path)
+    iteration = ckpt["state_dict"].get("iteration")
+    missing = list(ckpt.get("motion", {}).get("missing_files") or [])
+    return None if iteration is None else int(iteration), missing
+
+
+def load_run(path: Path, root: Path | None = None) -> dict:
+    """The record of one run folder: its config, checkpoints and their facts, its summary.
+    `path` in the record is relative to `root` (display_root) when given."""
+    config = _load_yaml(path / "config.yaml")
+    # Runs of older versions may lack run_name: their folder is runs/<name>/<time>.
+    config.setdefault("run_name", path.parent.name)
+    summary = _load_yaml(path / "summary.yaml") or {}
+    checkpoints, notes = find_checkpoints(path)
+    facts = {s: checkpoint_facts(p) for s, p in checkpoints.items()}
+    iterations_of = {s: iteration for s, (iteration, _) in facts.items()}
+    root = root or PROJECT_ROOT
+    shown = path.relative_to(root) if path.is_relative_to(root) else path
+    return {
+        "path": str(shown),
+        "config": config,
+        "seed": config.get("seed"),
+        "checkpoints": checkpoints,
+        "iterations_of": iterations_of,
+        "iterations": summary.get("iterations", iterations_of["last"]),
+        "finished": bool(summary),
+        "notes": notes,
+        "train_missing_files": facts["last"][1],
+        **{k: summary.get(k) for k in ("wall_time_s", "commit", "device")},
+    }
+
+
+# ---------------------------------------------------------------------------- grouping
+def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
+    out: dict[str, str] = {}
+    for key, value in config.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{name}."))
+        else:
+            out[name] = json.dumps(value)
+    return out
+
+
+def identity(config: dict) -> dict[str, str]:
+    """What makes a run the experiment it is: its config less seed, paths, device, logging."""
+    return {
+        k: v
+        for k, v in _flatten(config).items()
+        if k not in IGNORED_KEYS
+        # Trainer keys that change the numbers make another setting, not another seed.
+        and (not k.startswith(IGNORED_PREFIXES) or k.startswith(COMPUTES))
+    }
+
+
+@dataclass
+class Group:
+    """Runs of one experiment on one dataset that differ only in their seed.
+
+    label: short, for tables (`li2018_h36m, reference-code switches`); settings: the config
+    values that tell this group apart from the other groups of its experiment (the footnote
+    of its label); left_out: runs identical to a kept one (same configuration and seed)."""
+
+    label: str
+    run_name: str
+    dataset: str
+    runs: list[dict] = field(default_factory=list)
+    settings: dict[str, object] = field(default_factory=dict)
+    left_out: list[str] = field(default_factory=list)
+    ident: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def full_label(self) -> str:
+        """run_name with every setting that tells it apart: `m (data.future_len=10)`."""
+        if not self.settings:
+            return self.run_name
+        return f"{self.run_name} (" + ", ".join(f"{k}={v}" for k, v in self.settings.items()) + ")"
+
+
+def _short_label(run_name: str, settings: dict[str, object]) -> str:
+    words: list[str] = []
+    for key, value in settings.items():
+        if value is None:  # the setting is not in this group's config at all
+            word = None
+        elif key in SETTING_NAMES:
+            word = SETTING_NAMES[key] if value is not False else None
+        else:
+            word = f"{key.rsplit('.', 1)[-1]}={value}"
+        if word and word not in words:
+            words.append(word)
+    return ", ".join([run_name, *words])
+
+
+def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
+    """One run per seed: of identical runs, the one that trained longest, then a finished one,
+    then the first given; and a line per run left out saying which was kept."""
+    kept: dict[object, dict] = {}
+    for run in members:
+        seed = run.get("seed", run["config"].get("seed"))
+        kept.setdefault(seed, run)
+        other = kept[seed]
+        if other is not run and _rank(run) > _rank(other):
+            kept[seed] = run
+    lines = []
+    for run in members:
+        seed = run.get("seed", run["config"].get("seed"))
+        chosen = kept[seed]
+        if chosen is not run:
+            if _rank(chosen)[0] != _rank(run)[0]:
+                why = f"it trained {chosen.get('iterations'):,} iterations, that one "
+                why += f"{run.get('iterations'):,}"
+            elif _rank(chosen)[1] != _rank(run)[1]:
+                why = "that one has no summary.yaml (unfinished)"
+            else:
+                why = "given first"
+            lines.append(
+                f"seed {seed}: `{run.get('path')}` has the same configuration and seed as "
+                f"`{chosen.get('path')}`, which was kept ({why}); they count as one seed"
+            )
+    return [r for r in members if kept[r.get("seed", r["config"].get("seed"))] is r], lines
+
+
+def _rank(run: dict) -> tuple[int, bool]:
+    return (run.get("iterations") or 0, bool(run.get("finished", True)))
+
+
+def group_runs(runs: list[dict]) -> list[Group]:
+    """Group run records ({"config": ..., ...}) by run_name, dataset and configuration, in order
+    of first appearance. Runs sharing a run_name but differing in another setting (a budget, a
+    switch) are separate groups, labelled with the settings that tell them apart; identical
+    runs (same configuration and seed) count once."""
+    by_key: dict[tuple, list[dict]] = {}
+    for run in runs:
+        config = run["config"]
+        ident = identity(config)
+        key = (config.get("run_name"), config["data"]["name"], tuple(sorted(ident.items())))
+        by_key.setdefault(key, []).append(run)
+    groups = []
+    for (run_name, dataset, ident), members in by_key.items():
+        siblings = [dict(k[2]) for k in by_key if k[:2] == (run_name, dataset)]
+        settings: dict[str, object] = {}
+        if len(siblings) > 1:
+            mine = dict(ident)
+            keys = sorted(
+                k
+                for k in {k for s in siblings for k in s}
+                if len({s.get(k, "null") for s in siblings}) > 1
+            )
+            settings = {k: json.loads(mine.get(k, "null")) for k in keys}
+        kept, left_out = _keep_one_per_seed(members)
+        group = Group("", str(run_name), str(dataset), kept, settings, left_out, dict(ident))
+        group.label = _short_label(group.run_name, settings)
+        groups.append(group)
+    # Short labels that collide (two settings named alike) fall back to the full ones.
+    for group in groups:
+        if sum(g.label == group.label and g.dataset == group.dataset for g in groups) > 1:
+            group.label = group.full_label
+    return groups
+
+
+def parse_notes(items: list[str], labels) -> dict[str, str]:
+    """{label: text} from `--note LABEL=TEXT` items. `labels` lists the accepted labels, or maps
+    each accepted name (a group's short or full label) to the label it stands for. A label may
+    itself hold '=' ("martinez2017_res_sup (data.future_len=10)"), so the longest label that the
+    item starts with wins."""
+    names = labels if isinstance(labels, dict) else {label: label for label in labels}
+    notes = {}
+    for item in items:
+        matches = [name for name in names if item.startswith(f"{name}=")]
+        if not matches:
+            raise SystemExit(
+                f"error: --note {item!r}: expected EXPERIMENT=TEXT with EXPERIMENT one of the "
+                f"runs' experiments: {', '.join(dict.fromkeys(names.values()))}"
+            )
+        name = max(matches, key=len)
+        text = item[len(name) + 1 :].strip()
+        if not text:
+            raise SystemExit(f"error: --note {item!r}: the text after '=' is empty")
+        notes[names[name]] = text
+    return notes
+
+
+def note_names(groups: list[Group]) -> dict[str, str]:
+    """Every name a --note may use for a group (short or full label) -> its label."""
+    names = {g.full_label: g.label for g in groups}
+    names.update({g.label: g.label for g in groups})
+    return names
