@@ -341,6 +341,36 @@ def load_run(path: Path) -> dict:
     }
 
 
+def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
+    """Rows beside the baselines for models scored from a predictions file (`python -m src.eval
+    predictions=...`): one per model and dataset, from the results.json of each protocol."""
+    from src.plot_errors import read_results
+
+    entries: dict[tuple[str, str], dict] = {}
+    for path in paths:
+        try:
+            result = read_results(path)
+        except ValueError as err:  # plot_errors' ConfigError: not a results.json
+            raise SystemExit(f"error: --scored {err}") from None
+        prov = result.get("provenance", {})
+        label, dataset = prov.get("model", path.parent.name), prov.get("dataset", "?")
+        entry = entries.setdefault(
+            (label, dataset),
+            {"label": label, "dataset": dataset, "kind": "predictions", "results": {}},
+        )
+        entry.update(commit=prov.get("commit", "-"), missing_files=prov.get("missing_files", []))
+        entry["results"][prov.get("eval_protocol", "srnn")] = result
+    for entry in entries.values():
+        lacking = [p for p in protocols if p not in entry["results"]]
+        if lacking:
+            raise SystemExit(
+                f"error: --scored {entry['label']} ({entry['dataset']}) has no results for "
+                f"protocol {', '.join(lacking)}: score its predictions with protocol="
+                f"{lacking[0]} too, or pass --protocols {' '.join(entry['results'])}"
+            )
+    return list(entries.values())
+
+
 # ---------------------------------------------------------------------------- the page
 def _table_index(metric: str) -> int:
     return 0 if metric == "euler" else 1
@@ -642,7 +672,8 @@ def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
         missing = e.get("missing_files") or []
         missing_txt = f"{len(missing)} (see below)" if missing else "none"
         lines.append(
-            f"| {e['label']} (baseline) | - | - | {e.get('commit', '-')} | - | - | - | - | "
+            f"| {e['label']} ({e.get('kind', 'baseline')}) | - | - | {e.get('commit', '-')} | - "
+            "| - | - | - | "
             f"{e.get('archive_sha256', '-')} | {missing_txt} | - |"
         )
     return "\n".join(lines)
@@ -886,6 +917,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
     parser.add_argument(
+        "--scored",
+        nargs="*",
+        type=Path,
+        default=[],
+        help="results.json of `python -m src.eval predictions=...` (one per protocol): models "
+        "scored from a predictions file, shown beside the baselines",
+    )
+    parser.add_argument(
         "--target",
         action="append",
         default=[],
@@ -936,6 +975,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = [load_run(path) for path in discover_runs(args.runs)]
     groups = group_runs(runs)  # from the configs alone: a bad --note fails before evaluating
     notes = parse_notes(args.note, [g.label for g in groups])
+    scored = scored_entries(args.scored, args.protocols)  # read before anything is evaluated
     for index, run in enumerate(runs):
         evaluate_run(run, index, args.protocols, work)
         first = run["results"]["best"][args.protocols[0]]
@@ -962,6 +1002,7 @@ def main(argv: list[str] | None = None) -> int:
                 entry["results"][protocol] = result
                 entry["missing_files"] = result["provenance"]["missing_files"]
             baselines.append(entry)
+    baselines += scored
 
     hashes: dict[str, str] = {}
     for entry in [r for g in groups for r in g.runs] + baselines:
