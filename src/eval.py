@@ -4,6 +4,8 @@
     python -m src.eval model=running_avg_2 data=h36m data.allow_partial=true
     python -m src.eval ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
     python -m src.eval ckpt_path=... protocol=random      (256 windows per action)
+    python -m src.eval predictions=preds.npz data=h36m    (predictions from any code, of the
+                                                           windows src.export_windows wrote)
 
 Prints the per-action tables in the papers' layout (Euler-angle error, then MPJPE) with the
 published value beside ours where a paper gives one, and writes results.{md,csv,json} into the
@@ -26,6 +28,7 @@ from src.lit.runs import nothing_left_if_refused, training_run_name
 from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric
+from src.scoring import score_predictions
 
 log = logging.getLogger(__name__)
 register_resolvers()
@@ -64,13 +67,16 @@ def evaluate(cfg: DictConfig) -> dict:
     validate_eval_config(cfg)
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
-    dm, module = build_for_evaluation(cfg)
-    model_cfg = module.run_info["config"]["model"]
-    dataset = module.run_info["config"]["data"]["name"]
-    trainer: L.Trainer = build_trainer(
-        cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
-    )
-    trainer.test(module, datamodule=dm, verbose=False)
+    if cfg.get("predictions"):  # a file of predictions from any code, src/scoring.py
+        dm, module, model_cfg, dataset = score_predictions(cfg)
+    else:
+        dm, module = build_for_evaluation(cfg)
+        model_cfg = module.run_info["config"]["model"]
+        dataset = module.run_info["config"]["data"]["name"]
+        trainer: L.Trainer = build_trainer(
+            cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
+        )
+        trainer.test(module, datamodule=dm, verbose=False)
     tables = build_tables(module, dm, model_cfg, dataset)
 
     out_dir = Path(cfg.paths.output_dir)
@@ -80,6 +86,7 @@ def evaluate(cfg: DictConfig) -> dict:
         "run_name": training_run_name(cfg.ckpt_path) if cfg.ckpt_path else model_cfg["name"],
         "dataset": dataset,
         "checkpoint": str(cfg.ckpt_path) if cfg.ckpt_path else None,
+        "predictions": str(cfg.predictions) if cfg.get("predictions") else None,
         "eval_protocol": dm.eval_protocol,
         "windows": len(dm.eval_windows),
         "missing_files": list(dm.missing_files),

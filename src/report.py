@@ -44,6 +44,7 @@ from src.reporting.runs import (
     load_run,
     note_names,
     parse_notes,
+    scored_entries,
 )
 from src.reporting.verdicts import PROTOCOLS, TARGETS
 
@@ -86,6 +87,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "`--datasets` alone: no baselines)",
     )
     parser.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
+    parser.add_argument(
+        "--scored",
+        nargs="*",
+        type=Path,
+        default=[],
+        help="results.json of `python -m src.eval predictions=...` (one per protocol): models "
+        "scored from a predictions file, shown beside the baselines",
+    )
     parser.add_argument(
         "--target",
         action="append",
@@ -142,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     runs = [load_run(path, root) for path in paths]
     groups = group_runs(runs)  # from the configs alone: a bad --note fails before evaluating
     notes = parse_notes(args.note, note_names(groups))
+    scored = scored_entries(args.scored, args.protocols)  # read before anything is evaluated
 
     stamp = dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
     if args.work_dir is None:
@@ -156,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     datasets = sorted({g.dataset for g in groups})
     if args.datasets is not None:
         datasets = [d for d in args.datasets if d != "none"]
-    baselines = evaluate_baselines(datasets, args.protocols, work, commit)
+    baselines = evaluate_baselines(datasets, args.protocols, work, commit) + scored
     archives = Path(os.environ["MOTION_ARCHIVES"]) if os.environ.get("MOTION_ARCHIVES") else None
     mark_archives(kept + baselines, archives)
 

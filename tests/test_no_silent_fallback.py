@@ -248,6 +248,8 @@ def test_every_key_of_every_shipped_config_has_a_declared_type(tmp_path):
                     if not group.startswith("hydra") for option in _options(group)]  # fmt: skip
     compositions += [(name, ["model=zero_velocity", "data=cmu"]) for name in ("eval", "visualize")]
     compositions += [(name, ["ckpt_path=a.ckpt"]) for name in ("eval", "visualize")]
+    compositions += [("eval", ["predictions=p.npz", "data=h36m"])]
+    compositions += [("export_windows", [f"data={d}", "out=w.npz"]) for d in ("h36m", "cmu")]
     for config_name, overrides in compositions:
         cfg = compose_config(config_name, overrides, tmp_path)
         check_constructor_keys(cfg)
@@ -621,8 +623,8 @@ def test_row_13_every_readme_command_of_the_entry_points_composes_and_type_check
     from tests.conftest import compose_config
 
     _, lines = _readme_command_lines()
-    commands = [line for line in lines if re.match(r"(\.venv/bin/)?python -m src\.(train|eval|"
-                                                   r"visualize)\b", line)]  # fmt: skip
+    entries = r"(\.venv/bin/)?python -m src\.(train|eval|visualize|export_windows)\b"
+    commands = [line for line in lines if re.match(entries, line)]
     assert len(commands) >= 15
     for line in commands:
         words = shlex.split(line.split("&&")[-1].strip())

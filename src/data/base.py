@@ -50,6 +50,20 @@ class EvalWindow:
     start: int
 
 
+def window_ids(windows: Iterable[EvalWindow]) -> list[str]:
+    """One name per window, `<sequence>@<start>`: ``S5/walking_1@1087`` (subject 5, subaction 1)
+    or ``test/walking/walking_1@344`` (CMU file), the start counted in downsampled frames
+    (protocol §1.3). The random protocol may draw a window twice; its k-th repeat is named
+    ``...@start#k`` (k = 2, 3, ...), so that every window of a protocol has its own name."""
+    seen: dict[str, int] = {}
+    out = []
+    for w in windows:
+        name = f"{w.sequence}@{w.start}"
+        seen[name] = seen.get(name, 0) + 1
+        out.append(name if seen[name] == 1 else f"{name}#{seen[name]}")
+    return out
+
+
 def _positive(name: str, value, minimum: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
         raise DataError(f"data.{name} must be an integer >= {minimum}, got {value!r}")
@@ -358,6 +372,13 @@ class MotionDataModule(L.LightningDataModule):
 
     def test_dataloader(self) -> DataLoader:
         return self._eval_loader()
+
+    def raw_window(self, index: int) -> np.ndarray:
+        """Downsampled raw (unnormalised, F columns) frames of ``eval_windows[index]``:
+        observed_len observed frames, then future_len future ones."""
+        self._require_setup()
+        w = self.eval_windows[index]
+        return self._test_raw[w.sequence][w.start : w.start + self.window_len].copy()
 
     # ---- visualisation ----------------------------------------------------------------------
 

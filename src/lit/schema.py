@@ -111,6 +111,13 @@ class TrainConfig(_Common, total=False):  # conf/train.yaml
 
 class EvalConfig(_Common, total=False):  # conf/eval.yaml
     protocol: Literal[EVAL_PROTOCOLS] | None
+    predictions: str | None  # a .npz of predictions from any code (src/scoring.py)
+    published: str | None  # PAPER:METHOD or none
+
+
+class ExportWindowsConfig(_Common, total=False):  # conf/export_windows.yaml
+    protocol: Literal[EVAL_PROTOCOLS] | None
+    out: str | None
 
 
 class VisualizeConfig(_Common, total=False):  # conf/visualize.yaml
@@ -122,7 +129,12 @@ class VisualizeConfig(_Common, total=False):  # conf/visualize.yaml
     strip_step: int
 
 
-SCHEMAS = {"train": TrainConfig, "eval": EvalConfig, "visualize": VisualizeConfig}
+SCHEMAS = {
+    "train": TrainConfig,
+    "eval": EvalConfig,
+    "visualize": VisualizeConfig,
+    "export_windows": ExportWindowsConfig,
+}
 
 
 # ------------------------------------------------------------------------------ the check

@@ -328,7 +328,8 @@ def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
         missing = e.get("missing_files") or []
         missing_txt = f"{len(missing)} (see below)" if missing else "none"
         lines.append(
-            f"| {e['label']} (baseline) | - | - | {e.get('commit', '-')} | - | - | - | - | "
+            f"| {e['label']} ({e.get('kind', 'baseline')}) | - | - | {e.get('commit', '-')} | - "
+            "| - | - | - | "
             f"{e.get('archive_sha256', '-')} | {missing_txt} | - |"
         )
     return "\n".join(lines)

@@ -354,3 +354,33 @@ def note_names(groups: list[Group]) -> dict[str, str]:
     names = {g.full_label: g.label for g in groups}
     names.update({g.label: g.label for g in groups})
     return names
+
+
+def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
+    """Rows beside the baselines for models scored from a predictions file (`python -m src.eval
+    predictions=...`): one per model and dataset, from the results.json of each protocol."""
+    from src.plot_errors import read_results
+
+    entries: dict[tuple[str, str], dict] = {}
+    for path in paths:
+        try:
+            result = read_results(path)
+        except ValueError as err:  # plot_errors' ConfigError: not a results.json
+            raise SystemExit(f"error: --scored {err}") from None
+        prov = result.get("provenance", {})
+        label, dataset = prov.get("model", path.parent.name), prov.get("dataset", "?")
+        entry = entries.setdefault(
+            (label, dataset),
+            {"label": label, "dataset": dataset, "kind": "predictions", "results": {}},
+        )
+        entry.update(commit=prov.get("commit", "-"), missing_files=prov.get("missing_files", []))
+        entry["results"][prov.get("eval_protocol", "srnn")] = result
+    for entry in entries.values():
+        lacking = [p for p in protocols if p not in entry["results"]]
+        if lacking:
+            raise SystemExit(
+                f"error: --scored {entry['label']} ({entry['dataset']}) has no results for "
+                f"protocol {', '.join(lacking)}: score its predictions with protocol="
+                f"{lacking[0]} too, or pass --protocols {' '.join(entry['results'])}"
+            )
+    return list(entries.values())

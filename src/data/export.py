@@ -1,0 +1,56 @@
+"""The protocol's test windows as plain arrays, for models outside this project.
+
+`python -m src.export_windows` writes them; `src.scoring` checks a predictions file against the
+same windows. Arrays, in the protocol's order (src.data.base: action by action, then as drawn):
+
+- ``observed`` (N, observed_len, F) and ``future`` (N, future_len, F): raw exp-map frames
+  (F = 99 on H3.6M, 117 on CMU), downsampled as everywhere in the protocol (§1.3), float32;
+- ``action`` (N,) and ``window_id`` (N,) strings (src.data.base.window_ids);
+- metadata, each a 0-d array: ``dataset`` (the data config's name), ``protocol``, ``fps`` (the
+  frame rate the tables' horizons assume: 25, which CMU's labels also use, protocol §1.5) and
+  ``data_sha256``, a checksum of the windows (see `windows_sha256`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Iterable
+
+import numpy as np
+
+from src.data.base import MotionDataModule, window_ids
+
+METADATA = ("dataset", "protocol", "fps", "data_sha256")
+
+
+def windows_sha256(ids: Iterable[str], frames: Iterable[np.ndarray]) -> str:
+    """SHA-256 over each window's id and its observed + future frames (float32, C order), in
+    the protocol's order: equal for equal windows, whoever computes it from whatever copy."""
+    digest = hashlib.sha256()
+    for name, window in zip(ids, frames, strict=True):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(window, dtype=np.float32).tobytes())
+    return digest.hexdigest()
+
+
+def data_sha256(dm: MotionDataModule) -> str:
+    """`windows_sha256` of a set-up datamodule's evaluation windows."""
+    ids = window_ids(dm.eval_windows)
+    return windows_sha256(ids, (dm.raw_window(i) for i in range(len(ids))))
+
+
+def window_arrays(dm: MotionDataModule, dataset: str) -> dict[str, np.ndarray]:
+    """The arrays of the module docstring for a set-up datamodule; `dataset` is the data
+    config's name (``synthetic`` is in the H3.6M format but is not H3.6M)."""
+    frames = np.stack([dm.raw_window(i) for i in range(len(dm.eval_windows))])
+    ids = window_ids(dm.eval_windows)
+    return {
+        "observed": frames[:, : dm.observed_len],
+        "future": frames[:, dm.observed_len :],
+        "action": np.array([w.action for w in dm.eval_windows]),
+        "window_id": np.array(ids),
+        "dataset": np.array(dataset),
+        "protocol": np.array(dm.eval_protocol),
+        "fps": np.array(1000.0 / dm.frame_ms),
+        "data_sha256": np.array(windows_sha256(ids, frames)),
+    }

@@ -1,0 +1,68 @@
+"""Write the protocol's test windows to a .npz, for a model outside this project.
+
+    python -m src.export_windows data=h36m protocol=srnn out=windows.npz
+    python -m src.export_windows data=cmu protocol=random data.allow_partial=true out=cmu.npz
+
+The windows are those src.eval scores (src.data: the SRNN selection, the random or strided
+protocol), as raw exp-map frames; the arrays are described in src/data/export.py. Predict their
+`observed` frames with any model, save `prediction` and `window_id`, and score the file with
+`python -m src.eval predictions=preds.npz data=h36m protocol=srnn` (src/scoring.py).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from omegaconf import DictConfig
+
+from src.cli import hydra_entry
+from src.data.export import window_arrays
+from src.lit.factory import ConfigError, register_resolvers
+from src.lit.runs import nothing_left_if_refused
+from src.lit.schema import ExportWindowsConfig
+from src.lit.validation import validate_eval_config
+from src.scoring import protocol_datamodule
+
+register_resolvers()
+
+
+def export(cfg: DictConfig) -> Path:
+    """Write the windows of `data=` under `protocol=` to `out=`; return its path."""
+    validate_eval_config(cfg, ExportWindowsConfig)
+    out = Path(cfg.out) if cfg.get("out") else Path(cfg.paths.output_dir) / "windows.npz"
+    if out.suffix != ".npz":
+        raise ConfigError(f"out={out}: name a .npz file, e.g. out=windows.npz")
+    if out.exists():
+        raise ConfigError(f"out={out} already exists; nothing was overwritten. Name a new file.")
+    dm = protocol_datamodule(cfg)
+    arrays = window_arrays(dm, cfg.data.name)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    # Written beside, then renamed: a killed export leaves no half file under the name.
+    partial = out.with_name(f".{out.name}.partial-{os.getpid()}.npz")
+    try:
+        np.savez_compressed(partial, **arrays)
+        os.replace(partial, out)
+    finally:
+        partial.unlink(missing_ok=True)
+    n, obs, F = arrays["observed"].shape
+    absent = "".join(f"\n  absent: {a} ({why})" for a, why in dm.absent_actions.items())
+    print(
+        f"{n} {cfg.data.name} test windows, protocol={dm.eval_protocol} "
+        f"({', '.join(dict.fromkeys(arrays['action']))}): observed ({n}, {obs}, {F}), future "
+        f"({n}, {arrays['future'].shape[1]}, {F}) at {float(arrays['fps']):g} fps{absent}\n"
+        f"written to {out}"
+    )
+    return out
+
+
+@hydra_entry("export_windows")
+def main(cfg: DictConfig) -> None:
+    # Refused before writing (a bad setting, missing data): its run folder goes.
+    with nothing_left_if_refused(started=None):
+        export(cfg)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,331 @@
+"""Score predictions made by any code on the protocol's test windows.
+
+    python -m src.export_windows data=h36m protocol=srnn out=windows.npz
+    # ... predict windows.npz's `observed` with any model, save preds.npz ...
+    python -m src.eval predictions=preds.npz data=h36m protocol=srnn
+
+A predictions file is a .npz holding
+
+- ``prediction`` (N, T, F): raw exp-map frames, as windows.npz's (F = 99 on H3.6M, 117 on CMU),
+  the T = data.future_len (25) frames that follow each window's observed ones;
+- ``window_id`` (N,): strings, the ids of windows.npz, in any order.
+
+Optional: ``model``, a name for the tables (default: the file's name), and windows.npz's
+``dataset``, ``protocol`` and ``data_sha256``, which are then checked against what is scored.
+Every window of an action is predicted, or none: the action is then reported absent.
+
+Scoring is src.eval's evaluation with the file in place of a network: the ground truth of the
+same datamodule (the test frames through the training statistics, protocol §2.2), the same
+Euler-angle error and MPJPE, the same tables. In the prediction, the columns the protocol ignores
+(std < 1e-4 over the training frames, §2.1) are set to their training mean, as unnormalising the
+reference models' output does: no model is judged on them.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from omegaconf import DictConfig
+from torch import Tensor
+
+from src.data.base import EVAL_PROTOCOLS, MotionDataModule, window_ids
+from src.data.export import data_sha256
+from src.data.layout import SPECS
+from src.lit.factory import ConfigError, build_datamodule
+from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
+from src.metrics.kinematics import Skeleton, moving_joints
+from src.metrics.mpjpe import MPJPE
+from src.reporting.published import find_published, published_datasets
+
+OPTIONAL = ("model", "dataset", "protocol", "data_sha256")
+SAVE = "np.savez(path, prediction=<(N, T, F) raw exp-map>, window_id=<windows.npz's window_id>)"
+
+
+class PredictionsError(ConfigError):
+    """A predictions file that cannot be scored."""
+
+
+@dataclass
+class Predictions:
+    """A predictions file as read: the arrays and its optional string entries."""
+
+    path: Path
+    prediction: np.ndarray  # (N, T, F) float32
+    ids: list[str]
+    meta: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return self.meta.get("model") or self.path.stem
+
+
+@dataclass
+class Scores:
+    """What src.eval's tables take of an evaluated model: the per-action errors (A, T) of each
+    metric and the horizons (ms -> frame index), as MotionPredictor holds them after a test."""
+
+    last_results: dict[str, Tensor]
+    horizons: dict[int, int]
+
+
+# ---------------------------------------------------------------------------- the windows
+def protocol_datamodule(cfg: DictConfig) -> MotionDataModule:
+    """The set-up datamodule of `data=` with the test windows of `protocol=` (default: the
+    data config's own, srnn)."""
+    if cfg.get("data") is None:
+        raise ConfigError(
+            "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
+        )
+    data_cfg = cfg.data.copy()
+    protocol = cfg.get("protocol")
+    if protocol:
+        if protocol not in EVAL_PROTOCOLS:
+            raise ConfigError(
+                f"protocol={protocol!r} is unknown; use one of: {', '.join(EVAL_PROTOCOLS)}"
+            )
+        data_cfg.eval_protocol = protocol
+    dm = build_datamodule(data_cfg)
+    dm.prepare_data()
+    dm.setup("validate")
+    return dm
+
+
+# ---------------------------------------------------------------------------- the file
+def read_predictions(path: str | Path) -> Predictions:
+    """Read and check what can be checked without the data: the arrays' presence, types and
+    shapes, and finite values."""
+    path = Path(path)
+    if not path.is_file():
+        raise PredictionsError(f"predictions file not found: {path}. Save one with {SAVE}")
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except Exception as err:  # numpy raises several types for a file that is not an array
+        raise PredictionsError(
+            f"{path} is not a .npz file numpy can read ({str(err).splitlines()[0][:200]}); "
+            f"save the predictions with {SAVE}"
+        ) from err
+    if not isinstance(npz, np.lib.npyio.NpzFile):
+        raise PredictionsError(f"{path} holds one array, not a .npz of named arrays: {SAVE}")
+    with npz:
+        missing = [k for k in ("prediction", "window_id") if k not in npz.files]
+        if missing:
+            raise PredictionsError(
+                f"{path} has no {' and no '.join(missing)} array (it holds: "
+                f"{', '.join(npz.files) or 'nothing'}); save it with {SAVE}"
+            )
+        arrays = {}
+        for key in ("prediction", "window_id", *[k for k in OPTIONAL if k in npz.files]):
+            try:
+                arrays[key] = npz[key]
+            except ValueError as err:  # object arrays: loading them would unpickle
+                raise PredictionsError(
+                    f"{path}: {key} is an array of Python objects, which is not loaded (unpickling "
+                    f"can run code); save it as plain numbers or strings, np.asarray(..., "
+                    f"dtype={'np.float32' if key == 'prediction' else 'str'})"
+                ) from err
+    prediction, ids = arrays["prediction"], arrays["window_id"]
+    if prediction.dtype.kind not in "fiu":
+        raise PredictionsError(
+            f"{path}: prediction holds {prediction.dtype} values; it must hold numbers, raw "
+            "exp-map frames (N, T, F)"
+        )
+    if prediction.ndim != 3 or prediction.shape[0] == 0:
+        raise PredictionsError(
+            f"{path}: prediction has shape {prediction.shape}; it must be (N, T, F) with N >= 1: "
+            "N windows, T future frames, F columns (prediction[i] for window_id[i])"
+        )
+    if ids.dtype.kind not in "US" or ids.ndim != 1:
+        raise PredictionsError(
+            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}; it must be a 1-D "
+            "array of strings, the window_id of windows.npz (np.asarray(ids, dtype=str))"
+        )
+    if len(ids) != len(prediction):
+        raise PredictionsError(
+            f"{path}: {len(ids)} window ids for {len(prediction)} predictions; give one id per "
+            "prediction (window_id[i] names the window of prediction[i])"
+        )
+    ids = [i.decode() if isinstance(i, bytes) else str(i) for i in ids.tolist()]
+    meta = {}
+    for key in OPTIONAL:
+        if key in arrays:
+            value = arrays[key]
+            if value.dtype.kind not in "US" or value.size != 1:
+                raise PredictionsError(
+                    f"{path}: {key} must be one string (as windows.npz's), got a {value.dtype} "
+                    f"array of shape {value.shape}"
+                )
+            item = value.reshape(()).item()
+            meta[key] = item.decode() if isinstance(item, bytes) else str(item)
+    bad = ~np.isfinite(prediction)
+    if bad.any():
+        row, frame, col = np.argwhere(bad)[0].tolist()
+        raise PredictionsError(
+            f"{path}: prediction holds {int(bad.sum())} NaN or inf value(s), the first in window "
+            f"{ids[row]!r} (row {row}), frame {frame}, column {col}; every predicted value must "
+            "be finite"
+        )
+    return Predictions(path, prediction.astype(np.float32, copy=False), ids, meta)
+
+
+def check_intent(preds: Predictions, dataset: str, protocol: str) -> None:
+    """A file that says which dataset and protocol it was made for (windows.npz's entries,
+    carried over) is refused for another one."""
+    export = f"`python -m src.export_windows data={dataset} protocol={protocol}`"
+    for key, ours in (("dataset", dataset), ("protocol", protocol)):
+        theirs = preds.meta.get(key)
+        if theirs is not None and theirs != ours:
+            fix = f"data={theirs}" if key == "dataset" else f"protocol={theirs}"
+            raise PredictionsError(
+                f"{preds.path} holds predictions for {key} {theirs} (its {key!r} entry), not "
+                f"{ours}: score it with {fix}, or predict the windows of {export}"
+            )
+
+
+def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dict[str, str]:
+    """Check the file against the datamodule's windows; return the actions it has no
+    predictions for, {action: reason}."""
+    path, (_, T, F) = preds.path, preds.prediction.shape
+    protocol = dm.eval_protocol
+    export = f"`python -m src.export_windows data={dataset} protocol={protocol}`"
+    if F != dm.num_features:
+        if F == dm.pose_dim:
+            why = (
+                f"{F} is the number of normalised columns the models use inside this project; "
+                f"give raw exp-map frames of all {dm.num_features} columns, as windows.npz's"
+            )
+        else:
+            others = [s.name for s in SPECS.values() if s.n_columns == F]
+            why = f"a file for {others[0]}? score it with data={others[0]}" if others else ""
+            why = why or f"give raw exp-map frames of {dm.num_features} columns, as windows.npz's"
+        raise PredictionsError(
+            f"{path}: prediction has {F} columns per frame, {dataset} frames have "
+            f"{dm.num_features}: {why}"
+        )
+    need = dm.future_len
+    if T < need:
+        beyond = [ms for ms, k in horizon_frame_indices(dm.frame_ms, need).items() if k >= T]
+        column = f", and the table's {beyond[0]} ms column needs {beyond[0] // dm.frame_ms}"
+        raise PredictionsError(
+            f"{path}: prediction has {T} frames per window{column if beyond else ''}: predict "
+            f"{need} frames (data.future_len), or score fewer horizons with data.future_len={T} "
+            "(export the windows with it too)"
+        )
+    if T > need:
+        raise PredictionsError(
+            f"{path}: prediction has {T} frames per window, the protocol scores {need} "
+            f"(data.future_len): save the first {need}, prediction[:, :{need}]"
+        )
+    counts = Counter(preds.ids)
+    repeated = [i for i, n in counts.items() if n > 1]
+    if repeated:
+        raise PredictionsError(
+            f"{path}: window_id {repeated[0]!r} appears {counts[repeated[0]]} times "
+            f"({len(repeated)} id(s) repeated); give one prediction per window"
+        )
+    ours = window_ids(dm.eval_windows)
+    known = set(ours)
+    unknown = [i for i in preds.ids if i not in known]
+    if unknown:
+        absent = ""
+        if dm.absent_actions:
+            absent = f"; this data copy cannot evaluate {', '.join(dm.absent_actions)}"
+        raise PredictionsError(
+            f"{path}: {len(unknown)} of {len(preds.ids)} window ids are not {dataset} "
+            f"protocol={protocol} test windows (e.g. {unknown[0]!r}{absent}): a file for another "
+            f"protocol, dataset or data.future_len? Predict the windows of {export}"
+        )
+    given, absent = set(preds.ids), {}
+    for action in dm.actions:
+        names = [n for n, w in zip(ours, dm.eval_windows, strict=True) if w.action == action]
+        lacking = [n for n in names if n not in given]
+        if names and len(lacking) == len(names):
+            absent[action] = f"no predictions in {path.name}"
+        elif lacking:
+            raise PredictionsError(
+                f"{path}: {len(lacking)} of the {len(names)} {action} windows have no prediction "
+                f"(e.g. {lacking[0]!r}); predict all of them, or none to leave {action} out"
+            )
+    checksum = preds.meta.get("data_sha256")
+    if checksum is not None and checksum != data_sha256(dm):
+        raise PredictionsError(
+            f"{path}: its data_sha256 is not that of the windows here, so they were exported "
+            f"from other data (another copy of the archives, or other data.* settings): "
+            f"predict the windows of {export} run here"
+        )
+    return absent
+
+
+def published_ref(value: str | None, dataset: str) -> dict | None:
+    """`published=PAPER:METHOD` as a model config's `published` entry; None for none."""
+    if value in (None, "", "none"):
+        return None
+    paper, _, method = str(value).partition(":")
+    if dataset in published_datasets() and paper not in {
+        p for p, _ in find_published(dataset, method)
+    }:
+        raise ConfigError(
+            f"published={value}: no published {dataset} numbers of that paper and method; use "
+            f"PAPER:METHOD as in src/reporting/published_results.csv, e.g. li2018:conv_s2s "
+            "(or published=none)"
+        )
+    return {"paper": paper, "method": method}
+
+
+# ---------------------------------------------------------------------------- scoring
+def score(preds: Predictions, dm: MotionDataModule, dim_rule: str = "future") -> Scores:
+    """The Euler-angle error and MPJPE of the file's predictions per action and frame, computed
+    as MotionPredictor computes them in src.eval (its `_evaluate`), window for window."""
+    normalizer = dm.normalizer
+    skeleton = Skeleton.load(dm.dataset_name)
+    euler = EulerAngleError(len(dm.actions), dm.future_len, dim_rule=dim_rule)
+    mpjpe = MPJPE(
+        skeleton, moving_joints(skeleton, normalizer.used), len(dm.actions), dm.future_len
+    )
+    row_of = {name: row for row, name in enumerate(preds.ids)}
+    rows = torch.tensor([row_of.get(n, -1) for n in window_ids(dm.eval_windows)])
+    prediction = torch.from_numpy(preds.prediction)
+    for batch in dm.test_dataloader():
+        row = rows[batch["window"]]
+        keep = row >= 0
+        if not keep.any():
+            continue
+        future, observed, action = (batch[k][keep] for k in ("future", "observed", "action"))
+        gt_full = normalizer.unnormalize(future)
+        pred_full = torch.where(normalizer.used, prediction[row[keep]], normalizer.mean)
+        euler.update(pred_full, gt_full, action, gt_observed_full=normalizer.unnormalize(observed))
+        mpjpe.update(pred_full, gt_full, action)
+    return Scores(
+        {"euler": euler.compute(), "mpjpe": mpjpe.compute()},
+        horizon_frame_indices(dm.frame_ms, dm.future_len),
+    )
+
+
+def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, Scores, dict, str]:
+    """(datamodule, scores, model config, dataset) for src.eval's tables, from
+    `predictions=<file> data=<name> [protocol=...] [published=PAPER:METHOD]`. The datamodule's
+    windows and absent actions become those scored."""
+    if cfg.get("ckpt_path") or cfg.get("model") is not None:
+        raise ConfigError(
+            "predictions= scores a file on its own: drop ckpt_path= and model= (score a "
+            "checkpoint or a baseline in a separate src.eval run)"
+        )
+    if cfg.get("data") is None:
+        raise ConfigError(
+            f"say whose test windows {cfg.predictions} predicts: data=h36m|cmu|synthetic "
+            "(and protocol=srnn|random|strided)"
+        )
+    dataset = cfg.data.name
+    preds = read_predictions(cfg.predictions)
+    check_intent(preds, dataset, cfg.get("protocol") or cfg.data.eval_protocol)
+    published = published_ref(cfg.get("published"), dataset)
+    dm = protocol_datamodule(cfg)
+    absent = match_windows(preds, dm, dataset)
+    scores = score(preds, dm, cfg.metrics.dim_rule)
+    # The tables and the provenance count what was scored.
+    dm.absent_actions.update(absent)
+    dm.eval_windows = [w for w in dm.eval_windows if w.action not in absent]
+    return dm, scores, {"name": preds.name, "published": published}, dataset
