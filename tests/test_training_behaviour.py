@@ -4,6 +4,7 @@ Each test watches the optimisers from outside, through PyTorch's step hooks: the
 the learning rate every `optimizer.step()` sees, and the eta the network is run with. They
 fail when the method is wrong, whatever the code that computes it looks like:
 
+- without the regulariser the generator steps with the gradient of eq. (7);
 - the discriminator (eq. 8) and the generator (eq. 9) learn from different windows (protocol
   6.6);
 - the generator's adversarial term pushes D(fake) towards "real" (eq. 9, non-saturating);
@@ -26,22 +27,17 @@ import torch
 from src.lit.compose import compose_config
 from src.lit.factory import build_datamodule, build_module
 
+TINY_G = ["model=conv_s2s", "model.net.nf=2", "model.net.d_z=8", "data.batch_size=4"]
 TINY_CONV = [
-    "model=conv_s2s",
-    "model.net.nf=2",
-    "model.net.d_z=8",
+    *TINY_G,
     "adversarial=li2018",
     "adversarial.discriminator.nf=2",
     "adversarial.discriminator.d_z=8",
     "adversarial.discriminator.d_fc=4",
-    "data.batch_size=4",
 ]
 TINY_GRU = ["model=gru_s2s", "model.net.hidden=16", "data.batch_size=4"]
-NO_DROPOUT = [
-    "model.net.dropout=[0,0,0]",
-    "model.net.decoder_dropout=0",
-    "+adversarial.discriminator.dropout=[0,0,0]",
-]
+G_NO_DROPOUT = ["model.net.dropout=[0,0,0]", "model.net.decoder_dropout=0"]
+NO_DROPOUT = [*G_NO_DROPOUT, "+adversarial.discriminator.dropout=[0,0,0]"]
 
 
 @dataclass
@@ -162,7 +158,26 @@ def _flat(tensors) -> torch.Tensor:
     return torch.cat([t.flatten() for t in tensors])
 
 
-# ------------------------------------------------------------------ eq. (8), (9), protocol 6.6
+# ------------------------------------------------------------------ eq. (7), (8), (9), protocol 6.6
+def test_without_regulariser_the_generator_steps_with_the_reconstruction_gradient(setup):
+    """eq. (7): the reconstruction loss is the mean squared error over batch x frames x
+    dimensions in normalised space (protocol 6.6); with no adversarial term and no L2 it is
+    all the generator steps with (dropout off and eta = 1, so the prediction is repeatable)."""
+    dm, module = setup(
+        *TINY_G, *G_NO_DROPOUT, "adversarial=none", "sampling=full", "model.lambda_2=0"
+    )
+    m = module()
+    batch = _batch(dm, 0)
+    (g,) = _fit(m, [batch]).of("g")
+    m.load_state_dict(g.weights)
+    params = dict(m.net.named_parameters())
+    future = batch["future"]
+    prediction = m.net(batch["observed"], future.shape[1], action=batch["action"])
+    expected = torch.autograd.grad((prediction - future).square().mean(), list(params.values()))
+    for name, want in zip(params, expected, strict=True):
+        torch.testing.assert_close(g.grads[name], want, msg=name)
+
+
 def test_discriminator_and_generator_learn_from_different_windows(setup):
     """Protocol 6.6: each iteration is one D step on a batch, then one G step on a *different*
     batch. Changing one half of the step's windows must change the gradient of exactly one of
