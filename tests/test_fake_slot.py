@@ -2,8 +2,9 @@
 paper) and on (the reference code, protocol section 6.5).
 
 Every frame of the batch holds its own frame index (observed frames 0..49, future 50..74), so a
-sequence reads as the list of frames it is made of. The reference's fake sample is w[0..48],
-w[50], then the 25 predictions; its real sample is w[0..74] in both modes.
+sequence reads as the list of frames it is made of; through training_step, window i adds
+WINDOW * i, so a sequence also tells which window it comes from. The reference's fake sample is
+w[0..48], w[50], then the 25 predictions; its real sample is w[0..74] in both modes.
 """
 
 from __future__ import annotations
@@ -23,10 +24,22 @@ TRUE_FRAMES = list(range(OBSERVED + FUTURE))
 REFERENCE_FAKE_PREFIX = [*range(OBSERVED - 1), OBSERVED]
 
 
-def frame_batch(batch: int, dim: int) -> tuple[torch.Tensor, torch.Tensor]:
+WINDOW = 1000  # window i holds frame index + WINDOW * i (frame_batch with distinct=True)
+
+
+def frame_batch(batch: int, dim: int, distinct: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     frames = torch.arange(OBSERVED + FUTURE, dtype=torch.float32)
     frames = frames.view(1, -1, 1).expand(batch, -1, dim).clone()
+    if distinct:
+        frames += WINDOW * torch.arange(batch, dtype=torch.float32).view(-1, 1, 1)
     return frames[:, :OBSERVED], frames[:, OBSERVED:]
+
+
+def windows_of(sequence: torch.Tensor) -> tuple[list[int], torch.Tensor]:
+    """(the window each sample of a sequence comes from, read from its first observed frame;
+    the sequences with those offsets taken away)."""
+    ids = torch.div(sequence[:, 0, 0], WINDOW, rounding_mode="floor")
+    return [int(i) for i in ids], sequence - WINDOW * ids.view(-1, 1, 1)
 
 
 def frames_of(sequence: torch.Tensor) -> list[int]:
@@ -90,8 +103,8 @@ def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, referen
     module.discriminator.register_forward_pre_hook(
         lambda _, args: seen.append(args[0].detach().clone())
     )
-    # Four windows: the first two for the D step, the other two for the G step (chunk(2)).
-    observed, future = frame_batch(4, dm.normalizer.pose_dim)
+    # Four different windows: two draws of two, one for the D step, one for the G step.
+    observed, future = frame_batch(4, dm.normalizer.pose_dim, distinct=True)
     batch = {"observed": observed, "future": future, "action": torch.zeros(4, dtype=torch.long)}
     loader = torch.utils.data.DataLoader(_OneBatch(batch), batch_size=None)
     trainer = L.Trainer(
@@ -109,6 +122,12 @@ def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, referen
     (real_and_fake, fake_g) = seen
     real_d, fake_d = real_and_fake.chunk(2)
     assert real_d.shape[0] == fake_d.shape[0] == fake_g.shape[0] == 2
+    # Protocol 6.6: D judges the windows of one draw, real and predicted; the G step judges
+    # its predictions for the windows of the other draw.
+    (d_windows, real_d), (fake_d_windows, fake_d) = windows_of(real_d), windows_of(fake_d)
+    g_windows, fake_g = windows_of(fake_g)
+    assert fake_d_windows == d_windows
+    assert sorted(d_windows + g_windows) == [0, 1, 2, 3], (d_windows, g_windows)
     assert frames_of(real_d) == TRUE_FRAMES
     prefix = REFERENCE_FAKE_PREFIX if reference else list(range(OBSERVED))
     for fake in (fake_d, fake_g):

@@ -122,13 +122,15 @@ def _same(a, b, where: str = "") -> None:
 @pytest.mark.slow
 def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     """Killed right after the validation of iteration 4, which did not improve on iteration
-    2's: last.ckpt must hold iteration 4 all the same."""
+    2's: last.ckpt must hold iteration 4 all the same. eta ramps over the run (a constant
+    eta would hide a schedule that restarts at the resume)."""
     env = _env(synthetic_data_dir, tmp_path / "hook")
+    ramp = "sampling=linear"  # eta 0 -> 1 over the run's 6 iterations
 
     # A: uninterrupted.
     log_a = tmp_path / "a"
     proc = subprocess.run(
-        _train_cmd(log_a), cwd=ROOT, env=env, capture_output=True, text=True, timeout=600
+        _train_cmd(log_a, ramp), cwd=ROOT, env=env, capture_output=True, text=True, timeout=600
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     (run_a,) = _run_folders(log_a)
@@ -140,7 +142,7 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     # B: killed after the checkpoint of its second validation (no improvement).
     log_b = tmp_path / "b"
     killed = subprocess.Popen(
-        _train_cmd(log_b),
+        _train_cmd(log_b, ramp),
         cwd=ROOT,
         env=env,
         stdout=subprocess.DEVNULL,
@@ -158,7 +160,7 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     # Resume B with the same command; Hydra gives it a new folder.
     time.sleep(1.1)  # run folders are timestamped to the second
     proc = subprocess.run(
-        _train_cmd(log_b, f"ckpt_path={last_b}"),
+        _train_cmd(log_b, ramp, f"ckpt_path={last_b}"),
         cwd=ROOT,
         env=env,
         capture_output=True,
