@@ -117,4 +117,6 @@ def test_the_example_model_in_a_sweep_and_the_report(tmp_path, synthetic_data_di
     args = [str(sweep), "--out", str(out), "--protocols", "srnn", "--datasets", "none"]
     assert report([*args, "--work-dir", str(tmp_path / "work")]) == 0
     page = out.read_text()
-    assert page.count("| residual_mlp_synthetic (model.net.hidden=") >= 2, page
+    # Two experiments (one per hidden size), each under its short label.
+    assert "| residual_mlp_synthetic, hidden=16 |" in page, page
+    assert "| residual_mlp_synthetic, hidden=32 |" in page, page
