@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 from src.reporting.published import known_slips, published_beside, published_for
 from src.reporting.runs import Group
-from src.reporting.tables import SeedTable, Stat, same_set_average, table_from_dict
+from src.reporting.tables import SeedTable, same_set_average, table_from_dict
 
 PROTOCOLS = {
     "srnn": "8 windows per action (SRNN seeds, the papers' protocol)",
@@ -135,11 +135,6 @@ def seed_table(
 def mean_average(table: SeedTable) -> dict[int, float]:
     """The average row's mean over seeds per horizon; {} where an action has no values."""
     return {ms: stat.mean for ms, stat in (table.average() or {}).items()}
-
-
-def average_stats(group: Group, selection: str, protocol: str, metric: str) -> dict[int, Stat]:
-    """Mean ± std over the seeds of the average over the evaluated actions, per horizon."""
-    return seed_table(group, selection, protocol, metric).average() or {}
 
 
 def printed_gap(ours: float, published: float) -> float:
