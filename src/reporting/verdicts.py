@@ -75,7 +75,12 @@ class Reference:
         return f"{PAPERS.get(paper, paper)} {method}"
 
 
-def _int_keys(published: dict) -> dict[str, dict[int, float]]:
+def stored_published(table: dict, dataset: str) -> dict[str, dict[int, float]] | None:
+    """A stored result table's published values (results.json's ms keys back to int), where
+    the results are on the dataset they were published for; else None."""
+    published = published_beside(table, dataset)
+    if not published:
+        return None
     return {a: {int(ms): float(v) for ms, v in row.items()} for a, row in published.items()}
 
 
@@ -89,15 +94,15 @@ def references(group: Group) -> list[Reference]:
     else:
         result = next(iter(group.runs[0]["results"]["best"].values()))
         table = result["tables"][0]
-        published = published_beside(table, group.dataset)
+        published = stored_published(table, group.dataset)
         key = table.get("published_label")
     if not published or not key:
         return []
-    out = [Reference(key, _int_keys(published))]
+    out = [Reference(key, published)]
     for ref in ALSO_PUBLISHED.get((key, group.dataset), []):
         values, other = published_for(ref, group.dataset)
         if values:
-            out.append(Reference(other, _int_keys(values), ref.get("about")))
+            out.append(Reference(other, values, ref.get("about")))
     return out
 
 
