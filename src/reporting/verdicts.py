@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from src.reporting.evaluation import SELECTIONS
 from src.reporting.published import known_slips, published_beside, published_for
 from src.reporting.runs import Group
 from src.reporting.tables import SeedTable, same_set_average, table_from_dict
@@ -22,7 +23,6 @@ PROTOCOLS = {
     "random": "256 windows per action (fixed seed)",
 }
 HORIZONS = (80, 160, 320, 400, 560, 1000)
-SELECTIONS = ("best", "last")
 SELECTION_LABELS = {"best": "best (test-selected)", "last": "last (no test info)"}
 # The project's reproduction target: ours within this much (radians) of the published
 # same-set average at every published horizon. Override with --target DATASET=TOLERANCE.
