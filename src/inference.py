@@ -23,7 +23,6 @@ import warnings
 from collections import deque
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -61,12 +60,6 @@ def _device(device: str | torch.device) -> torch.device:
             "use device='cpu'"
         )
     return dev
-
-
-def _fps_of(config: dict) -> float:
-    """The model's frame rate: that of the data it was trained on (MotionDataModule.frame_ms)."""
-    target = config.get("data", {}).get("_target_")
-    return 1000 / hydra.utils.get_class(target).frame_ms if target else 25.0
 
 
 class _FixedHorizon(nn.Module):
@@ -137,11 +130,11 @@ class MotionForecaster:
         cls, path: str | Path, device: str = "cpu", compile: bool | str = False
     ) -> MotionForecaster:
         module = load_trained(path)
-        config = module.run_info["config"]
-        observed_len = config["data"]["observed_len"]
+        observed_len = module.run_info["config"]["data"]["observed_len"]
+        # The frame rate of the data it was trained on (MotionDataModule.frame_ms).
         return cls(
             module.net, module.normalizer, module.actions, observed_len, device, compile,
-            _fps_of(config),
+            1000 / module.frame_ms,
         )  # fmt: skip
 
     def _step(self, fps: float | None) -> int:

@@ -19,7 +19,6 @@ datasets are not comparable on one axis.
 from __future__ import annotations
 
 import difflib
-import json
 import sys
 from pathlib import Path
 
@@ -31,6 +30,7 @@ from src.cli import friendly_errors
 from src.lit.factory import PROJECT_ROOT, ConfigError
 from src.reporting.plots import error_vs_horizon
 from src.reporting.published import published_datasets
+from src.scoring import read_results
 
 METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
 OPTIONS = {
@@ -48,23 +48,6 @@ def usage() -> str:
     lines = [__doc__.strip(), "", "Arguments (key=value):"]
     lines += [f"  {key}={text}" for key, text in OPTIONS.items()]
     return "\n".join(lines)
-
-
-def read_results(path: str | Path) -> dict:
-    """The parsed results.json of one `python -m src.eval` run."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(
-            f"results file not found: {path}. `python -m src.eval ...` writes results.json "
-            "into its run folder under outputs/eval/runs/."
-        )
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ConfigError(f"{path} is not valid JSON: {err}") from err
-    if not isinstance(data, dict) or "tables" not in data:
-        raise ConfigError(f"{path} has no 'tables'; is it a results.json from src.eval?")
-    return data
 
 
 def curve(

@@ -52,10 +52,10 @@ def test_the_example_model_trains_and_every_command_takes_it(tmp_path, synthetic
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from src.eval import evaluate
-    from src.lit.factory import build_for_evaluation
     from src.inference import MotionForecaster
-    from src.train import train
+    from src.lit.factory import build_for_evaluation
     from src.reporting.plots import window_rows
+    from src.train import train
     from src.visualize import select_window
 
     quiet = ["trainer=cpu", "trainer.enable_progress_bar=false"]

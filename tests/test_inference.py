@@ -294,11 +294,7 @@ def test_ragged_or_non_numeric_frames_raise_clear_errors(forecaster, frames):
 def test_the_frame_rate_is_stated_and_other_rates_are_subsampled_or_refused(forecaster, frames):
     """Issue #26 row 14: 50 consecutive raw rows (50 Hz on H3.6M) used to be forecast as if
     they were 2 s at 25 fps, without a word."""
-    from src.inference import _fps_of
-
     assert forecaster.fps == 25.0  # every other row of the files (protocol §1.3)
-    for data in ("src.data.h36m.H36MDataModule", "src.data.cmu.CMUDataModule"):
-        assert _fps_of({"data": {"_target_": data}}) == 25.0
     raw = np.concatenate([frames[:, :50], frames[:, 10:60]], axis=1)  # (4, 100, F) at 50 fps
     np.testing.assert_allclose(
         forecaster.predict(raw, fps=50), forecaster.predict(raw[:, 1::2]), rtol=1e-5, atol=1e-6

@@ -1,4 +1,4 @@
-"""Evaluating runs and baselines for the results page (src.report), through src.eval.
+"""Evaluating runs and baselines for the results page (src.report), as src.eval does.
 
 Each run is evaluated twice: its best checkpoint (lowest validation error; validation runs on
 the test windows, as in both reference implementations, so this selection uses test
@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 
 from src.lit.compose import compose_config
+from src.scoring import evaluate as run_eval
 
 BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
@@ -23,9 +24,6 @@ SELECTIONS = ("best", "last")
 
 def evaluate(overrides: list[str], out_dir: Path) -> dict:
     """One src.eval evaluation (its results.json as a dict), written into out_dir."""
-    # src.eval is an entry point; the report is one too, and calls it as a user would.
-    from src.eval import evaluate as run_eval
-
     cfg = compose_config("eval", overrides, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     # eval prints its tables; they are kept beside its results instead of on the console.

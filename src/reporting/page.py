@@ -17,7 +17,7 @@ from pathlib import Path
 from src.lit.factory import git_commit
 from src.reporting.claims import ABLATIONS, claims_section
 from src.reporting.plots import Curve, horizon_panels
-from src.reporting.published import known_slips, published_beside
+from src.reporting.published import known_slips
 from src.reporting.runs import Group
 from src.reporting.tables import SeedTable, Stat, fmt, printed_scope, table_from_dict
 from src.reporting.verdicts import (
@@ -38,6 +38,7 @@ from src.reporting.verdicts import (
     seed_table,
     signed,
     slip_lines,
+    stored_published,
     training_data_line,
 )
 
@@ -262,7 +263,7 @@ def summary_table(groups: list[Group], baselines: list[dict], metric: str, proto
     for entry in baselines:
         result = entry["results"][protocol]
         table_dict = result["tables"][0 if metric == "euler" else 1]
-        published = _published_of(table_dict, entry["dataset"]) if metric == "euler" else None
+        published = stored_published(table_dict, entry["dataset"]) if metric == "euler" else None
         table = SeedTable(
             entry["label"],
             [table_from_dict(table_dict)],
@@ -277,14 +278,6 @@ def summary_table(groups: list[Group], baselines: list[dict], metric: str, proto
         if table.published is not None:
             lines += _published_rows(entry["label"], entry["dataset"], table)
     return "\n".join(lines)
-
-
-def _published_of(table: dict, dataset: str) -> dict[str, dict[int, float]] | None:
-    """A stored result table's published values (ms keys back to int), if on their dataset."""
-    published = published_beside(table, dataset)
-    if not published:
-        return None
-    return {a: {int(ms): float(v) for ms, v in row.items()} for a, row in published.items()}
 
 
 def _published_rows(label: str, dataset: str, table: SeedTable) -> list[str]:
@@ -442,7 +435,7 @@ def _baseline_tables(baselines: list[dict], protocol: str, metric: str) -> list[
     lines = []
     for entry in baselines:
         table_dict = entry["results"][protocol]["tables"][0 if metric == "euler" else 1]
-        published = _published_of(table_dict, entry["dataset"]) if metric == "euler" else None
+        published = stored_published(table_dict, entry["dataset"]) if metric == "euler" else None
         table = table_from_dict(table_dict, published, table_dict.get("published_label"))
         lines += [
             f"### {entry['label']} ({entry['dataset']}), {PROTOCOLS.get(protocol, protocol)}",

@@ -19,6 +19,7 @@ import yaml
 
 from src.lit.factory import PROJECT_ROOT
 from src.lit.runs import COMPUTES
+from src.scoring import read_results
 
 # Config keys that do not make two runs different experiments: the seed, where files live,
 # the device, how often files are written or progress printed, and torch.compile (whose
@@ -359,13 +360,11 @@ def note_names(groups: list[Group]) -> dict[str, str]:
 def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
     """Rows beside the baselines for models scored from a predictions file (`python -m src.eval
     predictions=...`): one per model and dataset, from the results.json of each protocol."""
-    from src.plot_errors import read_results
-
     entries: dict[tuple[str, str], dict] = {}
     for path in paths:
         try:
             result = read_results(path)
-        except ValueError as err:  # plot_errors' ConfigError: not a results.json
+        except ValueError as err:  # read_results' ConfigError: not a results.json
             raise SystemExit(f"error: --scored {err}") from None
         prov = result.get("provenance", {})
         label, dataset = prov.get("model", path.parent.name), prov.get("dataset", "?")

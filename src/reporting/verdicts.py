@@ -13,16 +13,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from src.reporting.evaluation import SELECTIONS
 from src.reporting.published import known_slips, published_beside, published_for
 from src.reporting.runs import Group
-from src.reporting.tables import SeedTable, Stat, same_set_average, table_from_dict
+from src.reporting.tables import SeedTable, same_set_average, table_from_dict
 
 PROTOCOLS = {
     "srnn": "8 windows per action (SRNN seeds, the papers' protocol)",
     "random": "256 windows per action (fixed seed)",
 }
 HORIZONS = (80, 160, 320, 400, 560, 1000)
-SELECTIONS = ("best", "last")
 SELECTION_LABELS = {"best": "best (test-selected)", "last": "last (no test info)"}
 # The project's reproduction target: ours within this much (radians) of the published
 # same-set average at every published horizon. Override with --target DATASET=TOLERANCE.
@@ -75,7 +75,12 @@ class Reference:
         return f"{PAPERS.get(paper, paper)} {method}"
 
 
-def _int_keys(published: dict) -> dict[str, dict[int, float]]:
+def stored_published(table: dict, dataset: str) -> dict[str, dict[int, float]] | None:
+    """A stored result table's published values (results.json's ms keys back to int), where
+    the results are on the dataset they were published for; else None."""
+    published = published_beside(table, dataset)
+    if not published:
+        return None
     return {a: {int(ms): float(v) for ms, v in row.items()} for a, row in published.items()}
 
 
@@ -89,15 +94,15 @@ def references(group: Group) -> list[Reference]:
     else:
         result = next(iter(group.runs[0]["results"]["best"].values()))
         table = result["tables"][0]
-        published = published_beside(table, group.dataset)
+        published = stored_published(table, group.dataset)
         key = table.get("published_label")
     if not published or not key:
         return []
-    out = [Reference(key, _int_keys(published))]
+    out = [Reference(key, published)]
     for ref in ALSO_PUBLISHED.get((key, group.dataset), []):
         values, other = published_for(ref, group.dataset)
         if values:
-            out.append(Reference(other, _int_keys(values), ref.get("about")))
+            out.append(Reference(other, values, ref.get("about")))
     return out
 
 
@@ -135,11 +140,6 @@ def seed_table(
 def mean_average(table: SeedTable) -> dict[int, float]:
     """The average row's mean over seeds per horizon; {} where an action has no values."""
     return {ms: stat.mean for ms, stat in (table.average() or {}).items()}
-
-
-def average_stats(group: Group, selection: str, protocol: str, metric: str) -> dict[int, Stat]:
-    """Mean ± std over the seeds of the average over the evaluated actions, per horizon."""
-    return seed_table(group, selection, protocol, metric).average() or {}
 
 
 def printed_gap(ours: float, published: float) -> float:
