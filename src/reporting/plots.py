@@ -14,6 +14,7 @@ no display; in a notebook they show with `display(fig)`.
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -346,7 +347,8 @@ def error_vs_horizon(
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
-        ax.set_title(title, fontsize=10)
+        # A long protocol name would run past a 5-inch panel and be cut off.
+        ax.set_title(textwrap.fill(title, 48), fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -389,6 +391,7 @@ def horizon_panels(
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-        ax.set_title(title, fontsize=10)
+        # A long protocol name would run past a 5-inch panel and be cut off.
+        ax.set_title(textwrap.fill(title, 48), fontsize=10)
     fig.tight_layout()
     return fig
