@@ -10,7 +10,7 @@ import re
 import pytest
 
 from src.report import main, new_folder
-from src.reporting.claims import ABLATIONS, claims_section
+from src.reporting.claims import ABLATIONS, claims, claims_section
 from src.reporting.page import build_page, headline_figure, readme_block, summary_table
 from src.reporting.published import KNOWN_SLIPS, published_for
 from src.reporting.runs import display_root, group_runs
@@ -369,6 +369,19 @@ def test_one_seed_of_li2018_h36m_cannot_judge_a_difference():
     text = claims_page([seeded(0.0, 1), ablation("li2018_h36m_no_long_term", 0.05)])
     assert "same direction at 5 of 5 (no seed spread to judge by)" in text
     assert "(+0.05)" not in text
+
+
+def test_before_any_ablation_is_trained_the_claims_are_listed_as_unchecked():
+    full = [seeded(d, s) for s, d in ((1, 0.0), (2, 0.01))]
+    text = claims_page(full)
+    assert text.startswith("## Ablations")
+    for claim in claims():
+        assert f"### {claim.title}" in text
+    assert "| no_long_term − li2018_h36m, paper | - | - | +0.03 | +0.04 |" in text  # Table 5
+    assert "not trained: li2018_h36m_no_long_term |" in text
+    assert "not trained: li2018_h36m_C20_no_adv |" in text
+    # Without li2018_h36m there is nothing to compare with: no section (a CMU-only page).
+    assert claims_page([seeded(0.0, 1, "li2018_cmu", "cmu", absent=[])]) == ""
 
 
 @pytest.mark.parametrize("delta, verdict", [(0.05, "disagrees"), (0.0, "agrees")])
