@@ -15,6 +15,12 @@ published tables; nothing is typed in.
 The page and its figure go to the command's own folder (outputs/report/<time>/results.md)
 unless --out names the file; --readme also puts the page's headline between the results
 markers of that file.
+
+With --records DIR, each run evaluated is also written to DIR as a small record (its
+evaluations, no checkpoint), and the runs recorded there join the page without their folders
+(src/reporting/records.py): a page can grow over several machines, a few runs at a time.
+
+    python -m src.report <new runs> --records docs/runs --out docs/results.md --readme README.md
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from src.reporting.page import (
     readme_block,
     replace_block,
 )
+from src.reporting.records import read_records, write_record
 from src.reporting.runs import (
     discover_runs,
     display_root,
@@ -119,6 +126,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "outputs/report/<time>)",
     )
     parser.add_argument(
+        "--records",
+        type=Path,
+        default=None,
+        help="a folder of run records (docs/runs for the shipped page): the runs recorded there "
+        "are on the page without their folders, and each run this report evaluates is recorded "
+        "there (src/reporting/records.py)",
+    )
+    parser.add_argument(
         "--readme",
         type=Path,
         default=None,
@@ -149,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     paths = discover_runs(args.runs)
     root = display_root(paths)
     runs = [load_run(path, root) for path in paths]
+    # After the run folders: a folder given again wins over its record (and re-records it).
+    runs += read_records(args.records, args.protocols) if args.records is not None else []
     groups = group_runs(runs)  # from the configs alone: a bad --note fails before evaluating
     notes = parse_notes(args.note, note_names(groups))
     scored = scored_entries(args.scored, args.protocols)  # read before anything is evaluated
@@ -159,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         work = args.work_dir.resolve()
     kept = [r for g in groups for r in g.runs]
-    for index, run in enumerate(kept):
+    fresh = [r for r in kept if not r.get("recorded")]
+    for index, run in enumerate(fresh):
         evaluate_run(run, index, args.protocols, work)
         first = run["results"]["best"][args.protocols[0]]
         run["missing_files"] = first["provenance"]["missing_files"]
@@ -168,7 +186,11 @@ def main(argv: list[str] | None = None) -> int:
         datasets = [d for d in args.datasets if d != "none"]
     baselines = evaluate_baselines(datasets, args.protocols, work, commit) + scored
     archives = Path(os.environ["MOTION_ARCHIVES"]) if os.environ.get("MOTION_ARCHIVES") else None
-    mark_archives(kept + baselines, archives)
+    mark_archives(fresh + baselines, archives)  # a record keeps the hash it was evaluated on
+    if args.records is not None:
+        date = dt.date.today().isoformat()
+        for run in fresh:
+            print(f"recorded {run['path']} as {write_record(run, args.records, commit, date)}")
 
     out = (args.out or work / "results.md").resolve()
     out.parent.mkdir(parents=True, exist_ok=True)

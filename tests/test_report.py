@@ -50,6 +50,7 @@ def test_report_from_a_short_run(train_cfg, tmp_path, synthetic_data_dir, monkey
     out = tmp_path / "results.md"
     readme = tmp_path / "README.md"
     readme.write_text("<!-- results:start -->\n<!-- results:end -->\n")
+    (tmp_path / "records").mkdir()
     assert (
         main(
             [
@@ -64,6 +65,8 @@ def test_report_from_a_short_run(train_cfg, tmp_path, synthetic_data_dir, monkey
                 str(tmp_path / "work"),
                 "--readme",
                 str(readme),
+                "--records",
+                str(tmp_path / "records"),
             ]
         )
         == 0
@@ -85,6 +88,20 @@ def test_report_from_a_short_run(train_cfg, tmp_path, synthetic_data_dir, monkey
     block = readme.read_text().split("<!-- results:start -->\n")[1].split("<!-- results:end")[0]
     assert "| gru_s2s_synthetic | synthetic | ours, best | 1 |" in block
     assert len(block.splitlines()) <= 25 and "(results_errors.png)" in block
+    # The run's record (written by --records) rebuilds the same page without the run folder.
+    (record,) = (tmp_path / "records").glob("*.json")
+    assert str(tmp_path) not in record.read_text()
+    again = tmp_path / "again" / "results.md"
+    args = [
+        "--records",
+        str(tmp_path / "records"),
+        "--protocols",
+        "srnn",
+        "--budget",
+        "4 iterations",
+    ]
+    assert main([*args, "--out", str(again), "--work-dir", str(tmp_path / "work2")]) == 0
+    assert again.read_text().split("## ")[0] == page.split("## ")[0]  # the headline
 
 
 # --- finding runs and their checkpoints -----------------------------------------------------

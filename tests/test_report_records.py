@@ -1,0 +1,141 @@
+"""Run records (`src.report --records`): a page rebuilt from the records of its runs, without
+their folders, is the page built from the runs; a new run joins the recorded ones and is the
+only one evaluated; the same run given again counts once and replaces its record; records name
+no machine's paths; a bad record is refused naming the file and the fix. The evaluations are
+stored results (tests/test_report.py), so these take seconds."""
+
+import json
+import re
+
+import pytest
+
+from src.report import main
+from tests.test_report import make_run, offset_result
+
+
+@pytest.fixture
+def evaluations(monkeypatch):
+    """src.report with stored evaluations: run i of seed s evaluates to the published value +
+    s / 100, its results naming the checkpoint by an absolute path as src.eval does. Returns
+    the list of run folders evaluated, in order."""
+    evaluated = []
+    monkeypatch.setattr("src.reporting.runs.checkpoint_facts", lambda path: (4000, []))
+
+    def evaluate_run(run, index, protocols, work):
+        evaluated.append(run["path"])
+        result = offset_result(run["seed"] / 100)
+        result["provenance"]["checkpoint"] = str(run["checkpoints"]["best"])
+        run["results"] = {s: {p: result for p in protocols} for s in ("best", "last")}
+
+    monkeypatch.setattr("src.report.evaluate_run", evaluate_run)
+    return evaluated
+
+
+def report(tmp_path, *args) -> str:
+    """Run src.report with the test's fixed options; returns the page."""
+    out = tmp_path / f"page{len(list(tmp_path.glob('page*')))}" / "results.md"
+    common = ["--protocols", "srnn", "--datasets", "none", "--budget", "b", "--out", str(out)]
+    assert main([*map(str, args), *common, "--work-dir", str(tmp_path / "work")]) == 0
+    return out.read_text()
+
+
+def without_record_notes(page: str) -> str:
+    """The page less its command line and the provenance notes that name records."""
+    body = page.split("## Command")[0]
+    note = r"record \S+: evaluated at \S+ on \S+"
+    return re.sub(rf"\| {note} \|", "| - |", re.sub(f"; {note}", "", body))
+
+
+def seed_run(tmp_path, seed: int, run_name="li2018_h36m"):
+    folder = tmp_path / "runs" / f"{run_name}_s{seed}" / "t"
+    return make_run(folder, summary={"iterations": 4000}, seed=seed, run_name=run_name)
+
+
+def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evaluations):
+    records = tmp_path / "records"
+    records.mkdir()
+    runs = [seed_run(tmp_path, 1), seed_run(tmp_path, 2)]
+    from_runs = report(tmp_path, *runs, "--records", records)
+    assert len(evaluations) == 2 and len(list(records.glob("*.json"))) == 2
+    from_records = report(tmp_path, "--records", records)
+    assert len(evaluations) == 2  # nothing evaluated again
+    assert without_record_notes(from_records) == without_record_notes(from_runs)
+    assert "| li2018_h36m | 1 |" in from_records and "| li2018_h36m | 2 |" in from_records
+    # The page says which rows came from a record, and when they were evaluated.
+    assert from_records.count("record li2018_h36m_seed") == 2
+    assert "record li2018_h36m_seed" not in from_runs
+
+
+def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(tmp_path, evaluations):
+    records = tmp_path / "records"
+    records.mkdir()
+    report(tmp_path, seed_run(tmp_path, 1), "--records", records)
+    (first,) = records.glob("*.json")
+    before = first.read_bytes()
+    page = report(tmp_path, seed_run(tmp_path, 2), "--records", records)
+    assert evaluations == ["li2018_h36m_s1/t", "li2018_h36m_s2/t"]
+    assert first.read_bytes() == before and len(list(records.glob("*.json"))) == 2
+    # Both seeds are on the page: seed 1 from its record, seed 2 from its folder.
+    assert "| li2018_h36m | 1 |" in page and "| li2018_h36m | 2 |" in page
+
+
+def test_the_same_run_given_again_counts_once_and_replaces_its_record(tmp_path, evaluations):
+    records = tmp_path / "records"
+    records.mkdir()
+    run = seed_run(tmp_path, 1)
+    report(tmp_path, run, "--records", records)
+    page = report(tmp_path, run, "--records", records)
+    assert len(evaluations) == 2  # the folder given wins over its record, and is evaluated
+    assert len(list(records.glob("*.json"))) == 1
+    assert page.count("| li2018_h36m | 1 |") == 1
+    # Another experiment of the same seed is another record, not a replacement.
+    report(tmp_path, seed_run(tmp_path, 1, "li2018_h36m_C10"), "--records", records)
+    assert len(list(records.glob("*.json"))) == 2
+
+
+def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluations):
+    records = tmp_path / "records"
+    records.mkdir()
+    report(tmp_path, seed_run(tmp_path, 1), "--records", records)
+    (record,) = records.glob("*.json")
+    text = record.read_text()
+    assert str(tmp_path) not in text
+    data = json.loads(text)
+    assert "checkpoints" not in data
+    prov = data["results"]["best"]["srnn"]["provenance"]
+    assert prov["checkpoint"] == "li2018_h36m_s1/t/checkpoints/last.ckpt"
+    assert data["evaluated"]["commit"] and data["seed"] == 1
+
+
+@pytest.mark.parametrize(
+    "content, says",
+    [
+        ("{not json", "is not valid JSON"),
+        ('{"a": 1}', "is not a run record (no format, path, config"),
+        ("WRONG_FORMAT", "evaluate its run again"),
+        ("NO_RANDOM", "has no best-checkpoint results for protocol random: give --protocols srnn"),
+    ],
+)
+def test_a_bad_record_is_refused_naming_the_file_and_the_fix(
+    tmp_path, evaluations, capsys, content, says
+):
+    records = tmp_path / "records"
+    records.mkdir()
+    report(tmp_path, seed_run(tmp_path, 1), "--records", records)
+    (record,) = records.glob("*.json")
+    if content == "WRONG_FORMAT":
+        content = record.read_text().replace('"format": 1', '"format": 99')
+    args = ["--records", str(records), "--datasets", "none", "--budget", "b"]
+    if content == "NO_RANDOM":
+        args += ["--protocols", "srnn", "random"]
+    else:
+        record.write_text(content)
+        args += ["--protocols", "srnn"]
+    with pytest.raises(SystemExit) as err:
+        main([*args, "--work-dir", str(tmp_path / "w")])
+    assert str(record) in str(err.value) and says in str(err.value)
+
+
+def test_a_records_folder_that_does_not_exist_is_refused(tmp_path, evaluations):
+    with pytest.raises(SystemExit, match="is not a folder"):
+        main(["--records", str(tmp_path / "nope"), "--datasets", "none", "--budget", "b"])
