@@ -129,7 +129,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--records",
         type=Path,
         default=None,
-        help="a folder of run records (docs/runs for the shipped page): the runs recorded there "
+        help="a folder of run records (docs/runs: the project's): the runs recorded there "
         "are on the page without their folders, and each run this report evaluates is recorded "
         "there (src/reporting/records.py)",
     )

@@ -86,7 +86,7 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
     if not folder.is_dir():
         raise SystemExit(
             f"error: --records {folder} is not a folder; give the folder of run records "
-            "(docs/runs holds the shipped page's), or create it to start one"
+            "(docs/runs holds the project's), or create it to start one"
         )
     runs = []
     for path in sorted(folder.glob("*.json")):
