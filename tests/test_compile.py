@@ -87,14 +87,16 @@ def test_compiled_step_gives_the_eager_step_losses(name, device, train_cfg, monk
     # The losses move between iterations: the optimiser steps reached the compiled graphs.
     assert eager_losses[0]["train/loss_recon"] != eager_losses[-1]["train/loss_recon"]
     # Weights: Adam moves every weight by about lr per step whatever its gradient's size, so
-    # float rounding of a near-zero gradient can change a step by up to lr; the two paths must
-    # stay far closer to each other than to where training started (a skipped or doubled
-    # step would be a third of that distance).
+    # float rounding that flips the sign of a near-zero gradient moves that one weight by 2 lr
+    # (seen on an AMD EPYC: 1.0e-4 of 1.5e-4 in one element of a discriminator conv). So the
+    # check is on the mean over each tensor: the two paths must stay far closer to each other
+    # than to where training started (a skipped or doubled step moves every weight, a third of
+    # that distance).
     for key, w in eager_weights.items():
         if not w.is_floating_point() or key.startswith("normalizer"):
             continue
-        trained = (w - first[key]).abs().max().item()
-        apart = (compiled_weights[key] - w).abs().max().item()
+        trained = (w - first[key]).abs().mean().item()
+        apart = (compiled_weights[key] - w).abs().mean().item()
         assert trained > 0, key
         assert apart <= 0.1 * trained, (key, apart, trained)
 
