@@ -31,6 +31,14 @@ def evaluations(monkeypatch):
     return evaluated
 
 
+@pytest.fixture
+def records(tmp_path):
+    """An empty folder of records."""
+    folder = tmp_path / "records"
+    folder.mkdir()
+    return folder
+
+
 def report(tmp_path, *args) -> str:
     """Run src.report with the test's fixed options; returns the page."""
     out = tmp_path / f"page{len(list(tmp_path.glob('page*')))}" / "results.md"
@@ -51,9 +59,7 @@ def seed_run(tmp_path, seed: int, run_name="li2018_h36m"):
     return make_run(folder, summary={"iterations": 4000}, seed=seed, run_name=run_name)
 
 
-def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evaluations):
-    records = tmp_path / "records"
-    records.mkdir()
+def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evaluations, records):
     runs = [seed_run(tmp_path, 1), seed_run(tmp_path, 2)]
     from_runs = report(tmp_path, *runs, "--records", records)
     assert len(evaluations) == 2 and len(list(records.glob("*.json"))) == 2
@@ -66,9 +72,9 @@ def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evalu
     assert "record li2018_h36m_seed" not in from_runs
 
 
-def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(tmp_path, evaluations):
-    records = tmp_path / "records"
-    records.mkdir()
+def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(
+    tmp_path, evaluations, records
+):
     report(tmp_path, seed_run(tmp_path, 1), "--records", records)
     (first,) = records.glob("*.json")
     before = first.read_bytes()
@@ -79,9 +85,9 @@ def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(tmp_path, e
     assert "| li2018_h36m | 1 |" in page and "| li2018_h36m | 2 |" in page
 
 
-def test_the_same_run_given_again_counts_once_and_replaces_its_record(tmp_path, evaluations):
-    records = tmp_path / "records"
-    records.mkdir()
+def test_the_same_run_given_again_counts_once_and_replaces_its_record(
+    tmp_path, evaluations, records
+):
     run = seed_run(tmp_path, 1)
     report(tmp_path, run, "--records", records)
     page = report(tmp_path, run, "--records", records)
@@ -93,9 +99,7 @@ def test_the_same_run_given_again_counts_once_and_replaces_its_record(tmp_path, 
     assert len(list(records.glob("*.json"))) == 2
 
 
-def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluations):
-    records = tmp_path / "records"
-    records.mkdir()
+def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluations, records):
     report(tmp_path, seed_run(tmp_path, 1), "--records", records)
     (record,) = records.glob("*.json")
     text = record.read_text()
@@ -117,10 +121,8 @@ def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluat
     ],
 )
 def test_a_bad_record_is_refused_naming_the_file_and_the_fix(
-    tmp_path, evaluations, capsys, content, says
+    tmp_path, evaluations, records, content, says
 ):
-    records = tmp_path / "records"
-    records.mkdir()
     report(tmp_path, seed_run(tmp_path, 1), "--records", records)
     (record,) = records.glob("*.json")
     if content == "WRONG_FORMAT":

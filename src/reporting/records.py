@@ -53,13 +53,13 @@ def _portable(value, run_path: str):
 
 
 def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
-    """Write the evaluated run's record into `folder`; returns its path."""
-    folder.mkdir(parents=True, exist_ok=True)
+    """Write the evaluated run's record into `folder` (read_records checked that it exists);
+    returns its path."""
     record = {
         "format": FORMAT,
         "evaluated": {"commit": commit, "date": date},
         **{k: _portable(run[k], run["path"]) for k in KEYS},
-        "notes": [n for n in run.get("notes", []) if not n.startswith("record ")],
+        "notes": run.get("notes", []),
         **{
             k: run[k]
             for k in (
