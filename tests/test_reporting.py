@@ -18,14 +18,12 @@ from src.reporting.published import (
     load_published,
     published_table,
 )
+from src.reporting.seed_table import SeedTable, Stat, seed_stat
 from src.reporting.tables import (
     AVERAGE,
     ResultTable,
-    SeedTable,
-    Stat,
     results_from_metric,
     same_set_average,
-    seed_stat,
     table_from_dict,
 )
 

@@ -16,7 +16,8 @@ from dataclasses import dataclass
 from src.reporting.evaluation import SELECTIONS
 from src.reporting.published import known_slips, published_beside, published_for
 from src.reporting.runs import Group
-from src.reporting.tables import SeedTable, same_set_average, table_from_dict
+from src.reporting.seed_table import SeedTable
+from src.reporting.tables import same_set_average, table_from_dict
 
 PROTOCOLS = {
     "srnn": "8 windows per action (SRNN seeds, the papers' protocol)",
