@@ -9,7 +9,7 @@
 
 Prints the per-action tables in the papers' layout (Euler-angle error, then MPJPE) with the
 published value beside ours where a paper gives one, and writes results.{md,csv,json} into the
-run's own folder under outputs/eval/ (src/scoring.py's `evaluate`).
+run's own folder under outputs/eval/ (src/results.py's `evaluate`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from omegaconf import DictConfig
 from src.cli import hydra_entry
 from src.lit.factory import register_resolvers
 from src.lit.runs import nothing_left_if_refused
-from src.scoring import evaluate
+from src.results import evaluate
 
 register_resolvers()
 

@@ -30,7 +30,7 @@ from src.cli import friendly_errors
 from src.lit.factory import PROJECT_ROOT, ConfigError
 from src.reporting.plots import error_vs_horizon
 from src.reporting.published import published_datasets
-from src.scoring import read_results
+from src.results import read_results
 
 METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
 OPTIONS = {

@@ -15,7 +15,7 @@ import re
 from pathlib import Path
 
 from src.lit.compose import compose_config
-from src.scoring import evaluate as run_eval
+from src.results import evaluate as run_eval
 
 BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}

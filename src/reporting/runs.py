@@ -19,7 +19,7 @@ import yaml
 
 from src.lit.factory import PROJECT_ROOT
 from src.lit.runs import COMPUTES
-from src.scoring import read_results
+from src.results import read_results
 
 # Config keys that do not make two runs different experiments: the seed, where files live,
 # the device, how often files are written or progress printed, and torch.compile (whose
