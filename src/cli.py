@@ -30,7 +30,7 @@ from hydra.errors import (
 from omegaconf import DictConfig, OmegaConf
 
 from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.lit.runs import USER_ERRORS
+from src.lit.run_folders import USER_ERRORS
 from src.lit.validation import constructor_args
 
 CONF_DIR = PROJECT_ROOT / "conf"

@@ -20,7 +20,7 @@ from omegaconf import DictConfig
 from src.cli import hydra_entry
 from src.data.export import window_arrays
 from src.lit.factory import ConfigError, register_resolvers
-from src.lit.runs import nothing_left_if_refused
+from src.lit.run_folders import nothing_left_if_refused
 from src.lit.schema import ExportWindowsConfig
 from src.lit.validation import validate_eval_config
 from src.scoring import protocol_datamodule

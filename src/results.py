@@ -14,7 +14,7 @@ import lightning as L
 from omegaconf import DictConfig
 
 from src.lit.factory import ConfigError, build_for_evaluation, build_trainer, git_commit
-from src.lit.runs import training_run_name
+from src.lit.run_folders import training_run_name
 from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import ResultTable, results_from_metric

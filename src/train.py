@@ -48,8 +48,9 @@ from src.lit.factory import (
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
-from src.lit.runs import check_schedule, describe, nothing_left_if_refused, restore_run
-from src.lit.validation import validate_train_config
+from src.lit.resume import describe, restore_run
+from src.lit.run_folders import nothing_left_if_refused
+from src.lit.validation import check_schedule, validate_train_config
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)

@@ -28,7 +28,7 @@ from omegaconf import DictConfig
 from src.cli import hydra_entry
 from src.data.base import MotionDataModule
 from src.lit.factory import ConfigError, build_for_evaluation, register_resolvers
-from src.lit.runs import nothing_left_if_refused
+from src.lit.run_folders import nothing_left_if_refused
 from src.lit.schema import VisualizeConfig
 from src.lit.validation import validate_eval_config
 from src.metrics.kinematics import Skeleton

@@ -322,7 +322,7 @@ def test_row_6_a_resumed_run_goes_under_the_outputs_folder_of_its_run(
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from src.lit.runs import restore_run
+    from src.lit.resume import restore_run
     from tests.conftest import compose_config
 
     elsewhere = tmp_path / "elsewhere"
@@ -346,7 +346,7 @@ def test_row_8_a_refused_resume_says_which_keys_may_change(tmp_path, synthetic_d
     from omegaconf import OmegaConf
 
     from src.lit.checkpoints import CheckpointError
-    from src.lit.runs import restore_run
+    from src.lit.resume import restore_run
     from tests.conftest import compose_config
 
     run = _fake_run(tmp_path / "run", synthetic_data_dir, *RUN)

@@ -268,7 +268,7 @@ def test_trainer_precision_makes_another_setting_not_a_seed():
 
 
 def test_progress_and_compile_settings_do_not_split_seeds():
-    """Settings a resume may change because they do not change what a run computes (src.lit.runs
+    """Settings a resume may change because they do not change what a run computes (src.lit.resume
     FREE) are not another experiment: seeds differing in them are averaged together."""
     runs = [{"config": _config(seed=s)} for s in (1, 2, 3)]
     runs[1]["config"]["progress_every_s"] = 60

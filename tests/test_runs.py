@@ -21,7 +21,9 @@ from src.lit.checkpoints import CheckpointError
 from src.lit.compose import compose_config
 from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
-from src.lit.runs import check_schedule, claim_run_folder, restore_run
+from src.lit.resume import restore_run
+from src.lit.run_folders import claim_run_folder
+from src.lit.validation import check_schedule
 from tests.conftest import ROOT
 from tests.test_resume import TINY
 
@@ -475,7 +477,7 @@ def test_fast_dev_run_writes_nothing_heavy_where_the_readme_says(tmp_path, synth
 
 def test_resume_names_the_run_folder_or_its_checkpoints_folder(tmp_path):
     """resume=<run>/checkpoints used to look for <run>/checkpoints/checkpoints/last.ckpt."""
-    from src.lit.runs import checkpoint_to_resume
+    from src.lit.resume import checkpoint_to_resume
 
     last = tmp_path / "run" / "checkpoints" / "last.ckpt"
     last.parent.mkdir(parents=True)

@@ -31,7 +31,7 @@ def register_resolvers() -> None:
     if not OmegaConf.has_resolver("project_root"):
         OmegaConf.register_new_resolver("project_root", lambda: str(PROJECT_ROOT))
     if not OmegaConf.has_resolver("evaluated"):
-        from src.lit.runs import evaluated_name  # here: runs.py imports this module
+        from src.lit.run_folders import evaluated_name  # here: it imports this module
 
         OmegaConf.register_new_resolver("evaluated", evaluated_name)
 

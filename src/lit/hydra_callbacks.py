@@ -74,7 +74,7 @@ class PrepareRun(Callback):
     def on_run_start(self, config: DictConfig, config_name: str | None = None, **kwargs) -> None:
         from lightning.pytorch.utilities import rank_zero_only
 
-        from src.lit.runs import USER_ERRORS, claim_run_folder
+        from src.lit.run_folders import USER_ERRORS, claim_run_folder
 
         if rank_zero_only.rank != 0:  # DDP's other ranks: Lightning passes rank 0's folder
             return
@@ -96,8 +96,8 @@ class PrepareRun(Callback):
 
     @staticmethod
     def _prepare_training(config: DictConfig) -> None:
-        from src.lit.runs import check_schedule, restore_run
-        from src.lit.validation import validate_train_config
+        from src.lit.resume import restore_run
+        from src.lit.validation import check_schedule, validate_train_config
 
         task = copy.deepcopy(config)
         with read_write(task), open_dict(task):
@@ -124,7 +124,7 @@ class PrepareRun(Callback):
 
     def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
         """A sweep's folder is claimed the same way; its jobs, numbered, cannot collide."""
-        from src.lit.runs import claim_run_folder
+        from src.lit.run_folders import claim_run_folder
 
         if _given(config, "hydra.sweep.dir"):
             return

@@ -192,3 +192,18 @@ def _check_protocol(key: str, protocol: str | None) -> None:
             protocol in EVAL_PROTOCOLS,
             f"{key}={protocol!r} is unknown; use one of: " + ", ".join(EVAL_PROTOCOLS),
         )
+
+
+def check_schedule(cfg: DictConfig) -> None:
+    """Training runs whole validation periods: `iterations` must be a multiple of `val_every`,
+    or the run would silently train more (or fewer) iterations than asked."""
+    iterations, every = int(cfg.iterations), int(cfg.val_every)
+    if iterations <= 0 or every <= 0 or iterations % every == 0:
+        return  # non-positive values are named by validate_train_config
+    lower = iterations // every * every
+    lengths = " or ".join(f"iterations={n}" for n in (lower, lower + every) if n > 0)
+    divisor = max(d for d in range(1, every + 1) if iterations % d == 0)
+    raise ConfigError(
+        f"iterations={iterations} is not a multiple of val_every={every} (training runs whole "
+        f"validation periods); use {lengths}, or val_every={divisor}."
+    )

@@ -18,7 +18,7 @@ from pathlib import Path
 import yaml
 
 from src.lit.factory import PROJECT_ROOT
-from src.lit.runs import COMPUTES
+from src.lit.resume import COMPUTES
 from src.results import read_results
 
 # Config keys that do not make two runs different experiments: the seed, where files live,
