@@ -79,7 +79,8 @@ def test_issue_targets_table_never_fills_a_device_it_did_not_run_on():
     sys.path.insert(0, str(ROOT))
     import torch
 
-    from benchmarks.benchmark import arithmetic_bound, issue_targets
+    from benchmarks.benchmark import arithmetic_bound
+    from benchmarks.benchmark_page import issue_targets
 
     inference = {"latency_ms_median": 20.0}
     cli = {"device": "cpu", "ref": "58436ca", "conv_adv": 0.9, "conv_adv_ref": 0.6, "gru": 2.0}
