@@ -231,17 +231,17 @@ def test_seeds_are_grouped_and_other_differences_are_not():
     runs = [
         {"config": _config(seed=1)},
         {"config": _config(seed=2, device="gpu")},  # device and folders do not matter
-        {"config": _config("li2018_cmu", "cmu", seed=1)},
+        {"config": _config("li2018_cmu", "cmu", seed=10)},
         {"config": _config(seed=3, fake_slot=True)},
         {"config": _config(seed=4, fake_slot=True)},
-        {"config": _config("li2018_cmu", "cmu", seed=2)},
+        {"config": _config("li2018_cmu", "cmu", seed=2)},  # found after 10, listed before it
     ]
     # A run resumed from a checkpoint is a seed of its experiment like any other.
     runs[1]["config"].update(resume="/runs/li2018_h36m_2", ckpt_path="/runs/x/last.ckpt")
     groups = group_runs(runs)
     assert [(g.full_label, g.dataset, [r["config"]["seed"] for r in g.runs]) for g in groups] == [
         ("li2018_h36m (adversarial.reference_fake_slot=False)", "h36m", [1, 2]),
-        ("li2018_cmu", "cmu", [1, 2]),
+        ("li2018_cmu", "cmu", [2, 10]),
         ("li2018_h36m (adversarial.reference_fake_slot=True)", "h36m", [3, 4]),
     ]
     # Short labels for the tables: the paper's setting is the plain name, the reference code's

@@ -290,6 +290,13 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     return [r for r in members if kept[r.get("seed", r["config"].get("seed"))] is r], lines
 
 
+def _seed_order(seed: object) -> tuple[int, float, str]:
+    """Numbers first, in numeric order, then anything else by its text."""
+    if isinstance(seed, (int, float)) and not isinstance(seed, bool):
+        return (0, float(seed), "")
+    return (1, 0.0, str(seed))
+
+
 def _rank(run: dict) -> tuple[int, bool]:
     return (run.get("iterations") or 0, bool(run.get("finished", True)))
 
@@ -318,6 +325,8 @@ def group_runs(runs: list[dict]) -> list[Group]:
             )
             settings = {k: json.loads(mine.get(k, "null")) for k in keys}
         kept, left_out = _keep_one_per_seed(members)
+        # In seed order, whichever order the runs were found or recorded in.
+        kept.sort(key=lambda r: _seed_order(r.get("seed", r["config"].get("seed"))))
         group = Group("", str(run_name), str(dataset), kept, settings, left_out, dict(ident))
         group.label = _short_label(group.run_name, settings)
         groups.append(group)
