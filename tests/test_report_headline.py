@@ -241,13 +241,13 @@ def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
     sweep = copy.deepcopy(single)
     sweep["path"] = "multiruns/2026-01-01/0_li2018_h36m_seed1234"
     (group,) = group_runs([single, sweep, seeded(0.01, 2)])
-    assert [r["seed"] for r in group.runs] == [1234, 2]
-    assert group.runs[0] is single
+    assert [r["seed"] for r in group.runs] == [2, 1234]  # in seed order
+    assert group.runs[1] is single
     (line,) = group.left_out
     assert "seed 1234: `multiruns/2026-01-01/0_li2018_h36m_seed1234` has the same" in line
     assert f"`{single['path']}`, which was kept (given first)" in line
     page = build_page([group], [], ["srnn"], "cmd", None, "abc1234")
-    assert "li2018_h36m (h36m): 2 seeds (1234, 2)" in page and "(1234, 1234)" not in page
+    assert "li2018_h36m (h36m): 2 seeds (2, 1234)" in page and "(1234, 1234)" not in page
     assert "**Identical runs counted once.** seed 1234:" in page
     # Of a run and its unfinished earlier copy, the one that trained longer is kept.
     short = copy.deepcopy(single)
