@@ -2,10 +2,10 @@
 
 Compiled, an objective runs as one graph (fullgraph: no Python between the kernels), and on a
 CUDA device mode reduce-overhead replays it as a CUDA graph. With inductor's `fallback_random`
-the compiled dropout draws eager's masks, so the two paths must give the same losses and
-weights up to float rounding (TF32 off on the GPU). Three iterations through a real Trainer:
-the eta tensor refilled in place, the graph outputs cloned before the next replay, and the
-optimiser steps between them are all on the path.
+the compiled dropout draws eager's masks (on CUDA when both draw uniform numbers: below), so
+the two paths must give the same losses and weights up to float rounding (TF32 off on the GPU).
+Three iterations through a real Trainer: the eta tensor refilled in place, the graph outputs
+cloned before the next replay, and the optimiser steps between them are all on the path.
 """
 
 import copy
@@ -16,6 +16,7 @@ import torch
 import torch._inductor.config as inductor_config
 
 from src.lit.factory import ConfigError, build_datamodule, build_module
+from src.models.dropout import Dropout
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 # Three future frames instead of 25: the graph (and its compile time) shrinks with the
@@ -27,6 +28,10 @@ CONFIGS = {
     # eta 1 as a tensor: always mixed, which must equal the prediction exactly
     "gru_s2s": ["experiment=martinez2017_res_sup"],
 }
+
+
+def _uniform_dropout(self: Dropout, x: torch.Tensor) -> torch.Tensor:
+    return self.drop_uniform(x) if self.training and 0 < self.p < 1 else x
 
 
 def _fit(cfg, compiled: bool, device: str) -> tuple[list[dict[str, float]], dict, dict]:
@@ -71,6 +76,10 @@ def test_compiled_step_gives_the_eager_step_losses(name, device, train_cfg, monk
     if device == "cuda":
         monkeypatch.setattr(torch.backends.cuda.matmul, "allow_tf32", False)
         monkeypatch.setattr(torch.backends.cudnn, "allow_tf32", False)
+        # Eager CUDA dropout is a fused kernel whose masks no compiled graph reproduces (seen
+        # on an H100: compiled losses 0.3% to 6% off eager's with dropout, within 1e-7
+        # without): both paths draw uniform numbers here, as on the CPU.
+        monkeypatch.setattr(Dropout, "forward", _uniform_dropout)
     cfg = train_cfg(*CONFIGS[name], *SHORT, "compile.mode=reduce-overhead")
     # On CUDA a graph that inductor cannot capture would run uncaptured with a warning: here
     # it is an error naming the reason.

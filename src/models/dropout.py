@@ -22,6 +22,12 @@ class Dropout(nn.Dropout):
     def forward(self, x: Tensor) -> Tensor:
         if not self.training or x.device.type != "cpu" or not 0 < self.p < 1:
             return super().forward(x)
+        return self.drop_uniform(x)
+
+    def drop_uniform(self, x: Tensor) -> Tensor:
+        """The CPU path, on any device. On CUDA a compiled graph draws eager's masks only this
+        way: inductor lowers nn.Dropout to uniform draws, not to eager's fused kernel
+        (tests/test_compile.py uses it to compare the two steps there)."""
         keep = 1.0 - self.p
         # Drawn in float32 whatever x's dtype: bfloat16 has 8 bits of mantissa, and its uniform
         # numbers keep about 0.001 too many elements (p=0.5 keeps 0.501 under bf16-mixed).
