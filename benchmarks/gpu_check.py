@@ -299,7 +299,8 @@ def render(r: dict) -> str:
     if equality:
         lines.append(
             "Three iterations of each objective compiled (mode reduce-overhead: CUDA graphs) "
-            "against eager, with compiled dropout drawing eager's masks: losses within a "
+            "against eager, both drawing dropout masks from uniform numbers (eager CUDA "
+            "dropout's fused kernel draws masks no compiled graph reproduces): losses within a "
             f"relative 1e-4 (`tests/test_compile.py::{EQUALITY_TEST}`)."
         )
         lines += [""] + [f"- `{n.split('::')[1]}`: {o} {d}".rstrip() for n, o, _, d in equality]
