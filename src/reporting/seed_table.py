@@ -10,7 +10,9 @@ from src.reporting.published import ReportingError
 from src.reporting.tables import (
     AVERAGE,
     ResultTable,
+    absent_row,
     fmt,
+    horizon_header,
     printed_average_row,
     same_set_average,
     table_footer,
@@ -131,13 +133,11 @@ class SeedTable:
             f"**{self.title}**: {self.tables[0].metric} ({self.tables[0].unit}), "
             + (f"mean ± std over {seeds}" if self.n > 1 else seeds),
             "",
-            "| action | " + " | ".join(f"{ms} ms" for ms in self.horizons_ms) + " |",
-            "|---" + "|---:" * len(self.horizons_ms) + "|",
+            *horizon_header(self.horizons_ms),
         ]
         for action in self.actions:
             if action in self.absent:
-                cells = [f"{action} [{notes[self.absent[action]]}]"]
-                cells += ["absent"] * len(self.horizons_ms)
+                cells = absent_row(action, notes[self.absent[action]], len(self.horizons_ms))
             else:
                 pub = (self.published or {}).get(action, {})
                 stats = self.stats(action)

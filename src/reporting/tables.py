@@ -53,6 +53,19 @@ def fmt(value: float | None, decimals: int) -> str:
     return "-" if value is None else f"{value:.{decimals}f}"
 
 
+def horizon_header(horizons_ms: Sequence[int]) -> list[str]:
+    """The header and alignment rows of a table with one row per action, a column per horizon."""
+    return [
+        "| action | " + " | ".join(f"{ms} ms" for ms in horizons_ms) + " |",
+        "|---" + "|---:" * len(horizons_ms) + "|",
+    ]
+
+
+def absent_row(action: str, note: int, n_horizons: int) -> list[str]:
+    """The cells of an action that cannot be evaluated, pointing to the footnote saying why."""
+    return [f"{action} [{note}]"] + ["absent"] * n_horizons
+
+
 def printed_scope(published: Mapping[str, Mapping] | None) -> str:
     """What the paper's printed average covers: "all 15 actions" where the paper gives the
     per-action values, else (an average-only table) "all of its actions"."""
@@ -194,17 +207,14 @@ class ResultTable:
     def to_markdown(self) -> str:
         """The table as GitHub markdown, with footnotes for absent actions and the average."""
         notes = self._footnotes()
-        header = ["action"] + [f"{ms} ms" for ms in self.horizons_ms]
         lines = [
             f"**{self.title}**: {self.metric} ({self.unit})",
             "",
-            "| " + " | ".join(header) + " |",
-            "|---" + "|---:" * len(self.horizons_ms) + "|",
+            *horizon_header(self.horizons_ms),
         ]
         for action in self.actions:
             if action in self.absent:
-                cells = [f"{action} [{notes[self.absent[action]]}]"]
-                cells += ["absent"] * len(self.horizons_ms)
+                cells = absent_row(action, notes[self.absent[action]], len(self.horizons_ms))
             else:
                 row = self.values[action]
                 cells = [action] + [self._cell(row[ms], action, ms) for ms in self.horizons_ms]
