@@ -371,6 +371,19 @@ def test_one_seed_of_li2018_h36m_cannot_judge_a_difference():
     assert "(+0.05)" not in text
 
 
+@pytest.mark.parametrize("delta", [0.003, -0.003])
+def test_a_difference_printed_as_zero_is_not_counted_as_a_direction(delta):
+    # Seen with real runs: +0.00 at every horizon, yet "same direction at 3 of 5".
+    text = claims_page([seeded(0.0, 1), ablation("li2018_h36m_no_long_term", delta)])
+    start = "| no_long_term − li2018_h36m ("
+    row = next(line for line in text.splitlines() if line.startswith(start))
+    assert "| 8 windows | best | +0.00 | +0.00 |" in row
+    assert row.endswith(
+        "| same direction at 0 of 5, 0.00 at 80, 160, 320, 400, 1000 ms "
+        "(no seed spread to judge by) |"
+    )
+
+
 def test_before_any_ablation_is_trained_the_claims_are_listed_as_unchecked():
     full = [seeded(d, s) for s, d in ((1, 0.0), (2, 0.01))]
     text = claims_page(full)

@@ -198,8 +198,12 @@ def _verdict(claim: Claim, delta: dict[int, float], spread: dict[int, float] | N
         return "agrees: no gain beyond the seed spread"
     opposite = [ms for ms in horizons if delta[ms] <= 0]
     if spread is None:
-        same = len(horizons) - len(opposite)
-        return f"same direction at {same} of {len(horizons)} (no seed spread to judge by)"
+        # A difference printed as +0.00 has no direction a reader can see: named, not counted.
+        zero = [ms for ms in horizons if round(delta[ms], 2) == 0]
+        same = sum(1 for ms in horizons if delta[ms] > 0 and ms not in zero)
+        text = f"same direction at {same} of {len(horizons)}"
+        text += f", 0.00 at {where(zero)}" if zero else ""
+        return text + " (no seed spread to judge by)"
     if any(ms in clear for ms in opposite):
         against = [ms for ms in opposite if ms in clear]
         return f"disagrees: opposite beyond the spread at {where(against)}"
