@@ -11,7 +11,13 @@ import pytest
 
 from src.report import main, new_folder
 from src.reporting.claims import ABLATIONS, claims, claims_section
-from src.reporting.page import build_page, headline_figure, readme_block, summary_table
+from src.reporting.page import (
+    build_page,
+    headline_figure,
+    headline_table,
+    readme_block,
+    summary_table,
+)
 from src.reporting.published import KNOWN_SLIPS, published_for
 from src.reporting.runs import display_root, group_runs
 from src.reporting.tables import AVERAGE, ResultTable, same_set_average
@@ -217,6 +223,14 @@ def test_headline_first_and_readme_block_short_on_the_leads_runs(tmp_path):
     assert [ax.get_title().split(":")[0] for ax in figure.axes] == ["h36m", "cmu"]
     figure.savefig(tmp_path / "f.png")
     assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("n, rows", [(1, "1 trained row:"), (2, "2 trained rows:")])
+def test_the_headline_counts_the_trained_ablations(n, rows):
+    groups = group_runs([seeded(0.0, 1)] + [seeded(0.0, 1, name) for name in ABLATIONS[:n]])
+    table, notes = headline_table(groups, "srnn", {"h36m": 0.03}, "#ablations")
+    (note,) = [line for line in notes if "ablations" in line]
+    assert f"Li et al.'s ablations ({rows} Tables 5 and 6, Figure 4)" in note
 
 
 def test_settings_that_tell_rows_apart_go_to_a_footnote():

@@ -128,7 +128,8 @@ def headline_table(
     ablations = [g for g in groups if g.run_name in ABLATIONS]
     if ablations and ablations_link and len(headline_groups(groups)) < len(groups):
         notes.append(
-            f"Li et al.'s ablations ({len(ablations)} trained rows: Tables 5 and 6, Figure 4) "
+            f"Li et al.'s ablations ({len(ablations)} trained "
+            f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) "
             f"are compared with li2018_h36m, claim by claim, under [{ABLATIONS_HEADING}]"
             f"({ablations_link})."
         )
