@@ -22,7 +22,7 @@ import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from lightning.pytorch.callbacks import LearningRateMonitor
+from lightning.pytorch.callbacks import LearningRateMonitor, Timer
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
@@ -145,11 +145,16 @@ def train(cfg: DictConfig) -> float:
     checkpoints = BestCheckpoint(out_dir / "checkpoints")
     last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path
+    # Training time over every segment of a resumed run: Timer keeps it in the checkpoint.
+    # Known only when the resumed checkpoint holds it (older ones do not).
+    timer = Timer()
+    total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
         cfg.trainer,
         max_epochs=cfg.iterations // cfg.val_every,  # exact: check_schedule
         logger=logger,
         callbacks=[
+            timer,
             checkpoints,
             last,
             LearningRateMonitor("step"),
@@ -185,7 +190,9 @@ def train(cfg: DictConfig) -> float:
             "final_val_euler_avg": final["euler_avg"],
             "final_val_mpjpe_avg": final["mpjpe_avg"],
             "iterations": int(module.iteration),
-            "wall_time_s": round(wall, 1),
+            "wall_time_s": round(wall, 1),  # this process's
+            "train_time_s": round(timer.time_elapsed("train"), 1) if total_known else None,
+            "resumed_at": None if ckpt is None else int(ckpt["state_dict"]["iteration"]),
             "commit": run_info["commit"],
             "device": _device_name(trainer),
         }

@@ -11,7 +11,7 @@ import yaml
 
 from src.report import main, replace_block
 from src.reporting.evaluation import evaluate_run
-from src.reporting.page import build_page, readme_block, summary_table
+from src.reporting.page import build_page, provenance_table, readme_block, summary_table
 from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
 from src.reporting.runs import (
     discover_runs,
@@ -324,6 +324,18 @@ def fake_run(seed: int, best: float, last: float, run_name: str = "li2018_h36m")
         "missing_files": ["h3.6m/dataset/S5/waiting_1.txt"],
         "results": {"best": {"srnn": fake_result(best)}, "last": {"srnn": fake_result(last)}},
     }
+
+
+def test_provenance_gives_the_training_time_over_every_segment_of_a_resumed_run():
+    fresh = fake_run(1, 0.3, 0.3)  # 600 s in one go
+    resumed = fake_run(2, 0.3, 0.3)
+    resumed["config"]["ckpt_path"] = "runs/x/checkpoints/last.ckpt"
+    resumed["train_time_s"] = 1800.0  # src.train's total over its segments
+    older = fake_run(3, 0.3, 0.3)  # resumed before src.train kept the total
+    older["config"]["ckpt_path"] = "runs/y/checkpoints/last.ckpt"
+    rows = provenance_table(group_runs([fresh, resumed, older]), []).splitlines()[2:]
+    times = [row.split(" | ")[6] for row in rows]
+    assert times == ["10.0 min", "30.0 min", "10.0 min (last segment)"]
 
 
 def test_page_reports_best_and_last_as_mean_and_std_over_seeds():

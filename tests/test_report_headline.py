@@ -316,6 +316,10 @@ def test_run_folders_are_shown_relative_to_their_common_folder(tmp_path):
         run.mkdir(parents=True)
     assert display_root([a, b]) == tmp_path / "out"
     assert display_root([a]) == a.parent.parent  # one run: li2018_h36m/t1, not "."
+    # The segments of one resumed run: li2018_h36m/t1 and li2018_h36m/t3, not t1 and t3.
+    c = a.parent / "t3"
+    c.mkdir()
+    assert display_root([a, c]) == a.parent.parent
 
 
 # --- Li et al.'s ablation claims --------------------------------------------------------------

@@ -13,6 +13,7 @@ import threading
 from pathlib import Path
 
 import pytest
+import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
@@ -41,6 +42,7 @@ GRU = [
 # SIGKILL), loaded through PYTHONPATH: the interruption always falls at the same iteration.
 DIE_AFTER_SAVE = """
 import os
+import time
 
 from src.lit.checkpoints import LastCheckpoint
 
@@ -48,8 +50,11 @@ _save = LastCheckpoint.save
 
 
 def _save_then_die(self, trainer, pl_module):
+    dies = int(pl_module.iteration) == int(os.environ["DIE_AFTER"])
+    if dies:  # training time that only the checkpoint can carry to the resumed run
+        time.sleep(float(os.environ.get("SLEEP_BEFORE", "0")))
     _save(self, trainer, pl_module)
-    if int(pl_module.iteration) == int(os.environ["DIE_AFTER"]):
+    if dies:
         os._exit(137)
 
 
@@ -135,6 +140,27 @@ def test_resume_restores_the_runs_own_settings(how, tmp_path, synthetic_data_dir
     # Where files live is this command's: the new run writes into its own folder.
     assert cfg.paths.output_dir == str(tmp_path / "new")
     assert cfg.data.data_dir == str(synthetic_data_dir)
+
+
+def test_a_checkpoint_away_from_its_run_folder_resumes_with_the_command_lines_schedule(
+    tmp_path, synthetic_data_dir
+):
+    """No config.yaml beside the checkpoint: its stored sections (model, data, ...) are the
+    run's; what it does not store (length, schedule, seed) is the command line's, accepted."""
+    run_cfg = compose_config("train", RUN, tmp_path / "run", synthetic_data_dir)
+    sections = {
+        k: OmegaConf.to_container(run_cfg[k], resolve=True)
+        for k in ("model", "data", "sampling", "adversarial", "metrics")
+    }
+    ckpt = tmp_path / "copied.ckpt"
+    torch.save({"motion": {"config": sections}, "state_dict": {}}, ckpt)
+    cfg, resume = _restore(tmp_path / "new", synthetic_data_dir, f"ckpt_path={ckpt}", *RUN)
+    assert resume.from_checkpoint
+    assert (cfg.iterations, cfg.val_every, cfg.seed, cfg.data.steps_per_epoch) == (6, 2, 7, 2)
+    assert cfg.model.net.hidden == 16 and cfg.model.optimizer.lr == 0.01
+    # What the checkpoint stores still may not change.
+    with pytest.raises(CheckpointError, match="model.optimizer.lr: checkpoint 0.01, command line"):
+        _restore(tmp_path / "new2", synthetic_data_dir, f"ckpt_path={ckpt}", *RUN[:-1])
 
 
 def test_resume_applies_length_and_trainer_overrides_on_top(tmp_path, synthetic_data_dir):
@@ -225,8 +251,9 @@ def test_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, synthetic_d
     (hook / "sitecustomize.py").write_text(DIE_AFTER_SAVE)
     path = os.pathsep.join([str(hook), str(ROOT)])
     died = _cli(
-        "src.train", tmp_path / "b", synthetic_data_dir, *run_args, PYTHONPATH=path, DIE_AFTER="2"
-    )
+        "src.train", tmp_path / "b", synthetic_data_dir, *run_args, PYTHONPATH=path,
+        DIE_AFTER="2", SLEEP_BEFORE="3",
+    )  # fmt: skip
     assert died.returncode == 137, died.stderr[-3000:]
     (run_b,) = _runs(tmp_path / "b")
     assert not (run_b / "summary.yaml").exists()
@@ -244,6 +271,28 @@ def test_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, synthetic_d
     assert sum_b["iterations"] == sum_a["iterations"] == 6
     for key in ("final_val_euler_avg", "final_val_mpjpe_avg", "best_val_euler_avg"):
         assert sum_b[key] == sum_a[key], key  # exact: bit for bit on CPU
+    # Training time: the first segment's (3 s of sleep in it) carried over by the checkpoint.
+    first = torch.load(run_b / "checkpoints" / "last.ckpt", weights_only=False)
+    t1 = first["callbacks"]["Timer"]["time_elapsed"]["train"]
+    assert t1 >= 3
+    # This process's training alone cannot exceed its own wall time; with t1 carried, it does.
+    assert sum_b["wall_time_s"] < sum_b["train_time_s"] <= t1 + sum_b["wall_time_s"]
+    assert sum_b["train_time_s"] > t1
+    assert (sum_a["resumed_at"], sum_b["resumed_at"]) == (None, 2)
+    assert sum_a["train_time_s"] <= sum_a["wall_time_s"]
+    # From a checkpoint without the Timer's state (src.train before it kept one), the total is
+    # unknown: null, not this process's time passed off as the whole.
+    del first["callbacks"]["Timer"]
+    torch.save(first, tmp_path / "older.ckpt")
+    older = _cli(
+        "src.train", tmp_path / "c", synthetic_data_dir, *run_args,
+        f"ckpt_path={tmp_path / 'older.ckpt'}",
+    )  # fmt: skip
+    assert older.returncode == 0, older.stderr[-8000:]
+    (run_c,) = _runs(tmp_path / "c")
+    sum_c = OmegaConf.to_container(OmegaConf.load(run_c / "summary.yaml"))
+    assert (sum_c["train_time_s"], sum_c["resumed_at"]) == (None, 2)
+    assert sum_c["final_val_euler_avg"] == sum_a["final_val_euler_avg"]
 
     # The finished run has nothing left to do: refused, and no folder is left for it.
     again = _cli("src.train", tmp_path / "a", synthetic_data_dir, f"resume={run_a}")

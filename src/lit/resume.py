@@ -209,9 +209,9 @@ def restore_run(
         from_checkpoint = False
     else:
         # The sections the checkpoint stores; the length, schedule and seed come from the
-        # command line, and an epoch stays `val_every` iterations.
+        # command line, and an epoch stays `val_every` iterations (set below, not compared).
         saved = OmegaConf.create(read_checkpoint(ckpt)["motion"]["config"])
-        saved.data.steps_per_epoch = "${val_every}"
+        _remove(saved, "data.steps_per_epoch")
         from_checkpoint = True
     run_choices = _run_choices(run_dir)
 
@@ -227,6 +227,8 @@ def restore_run(
         elif key == "hydra":
             _remove(restored, key)
     _set(restored, "ckpt_path", str(ckpt))
+    if from_checkpoint:
+        _set(restored, "data.steps_per_epoch", "${val_every}")
     parsed = OverridesParser.create().parse_overrides(list(overrides))
     log_dir = outputs_folder_of(run_dir)
     if log_dir is not None and not any(_under(o.key_or_group, ("paths",)) for o in parsed):
@@ -262,6 +264,8 @@ def restore_run(
             else:
                 _set(restored, key, _raw(raw, key))
             continue
+        if from_checkpoint and key.split(".")[0] not in saved:
+            continue  # a section the checkpoint does not store: the command line's
         old = _plain(OmegaConf.select(saved, key, default=_ABSENT))
         new = _ABSENT if override.is_delete() else _plain(OmegaConf.select(cfg, key))
         if old != new:

@@ -301,6 +301,18 @@ def _published_rows(label: str, dataset: str, table: SeedTable) -> list[str]:
     return rows
 
 
+def _wall_time(run: dict) -> str:
+    """Training time over all of a run's segments; for a run resumed from a checkpoint that
+    does not hold it (src.train before train_time_s), the last segment's, said as such."""
+    total = run.get("train_time_s")
+    if total is not None:
+        return f"{total / 60:.1f} min"
+    wall = run.get("wall_time_s")
+    if wall is None:
+        return "-"
+    return f"{wall / 60:.1f} min" + (" (last segment)" if run["config"].get("ckpt_path") else "")
+
+
 def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
     lines = [
         "| experiment | seed | run folder | commit | iterations | best at | wall time | device "
@@ -310,11 +322,10 @@ def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
     for group in groups:
         for r in group.runs:
             missing = r.get("missing_files") or []
-            wall = r.get("wall_time_s")
             lines.append(
                 f"| {group.label} | {r['seed']} | `{r['path']}` | {r.get('commit') or '-'} | "
                 f"{_range([r['iterations']])} | {_range([r['iterations_of']['best']])} | "
-                f"{'-' if wall is None else f'{wall / 60:.1f} min'} | {r.get('device') or '-'} | "
+                f"{_wall_time(r)} | {r.get('device') or '-'} | "
                 f"{r.get('archive_sha256', '-')} | "
                 f"{f'{len(missing)} (see below)' if missing else 'none'} | "
                 f"{'; '.join(r['notes']) or '-'} |"

@@ -65,6 +65,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
             for k in (
                 "finished",
                 "wall_time_s",
+                "train_time_s",
                 "commit",
                 "device",
                 "missing_files",

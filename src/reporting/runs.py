@@ -98,18 +98,18 @@ def discover_runs(paths: list[Path]) -> list[Path]:
 def display_root(runs: list[Path]) -> Path:
     """The folder the page names run folders relative to, so that it shows no machine's
     absolute paths: the project for runs inside it (outputs/train/runs/...), else the runs'
-    common folder (for /x/out/<job>/train/runs/<name>/<time>: /x/out; for one run, the folder
-    two levels up)."""
+    common folder, raised until each run shows as two parts at least (<run_name>/<time> in
+    src.train's layout): for /x/out/<job>/train/runs/<name>/<time>, /x/out; for one run, or the
+    segments of one resumed run, the run's <name> folder's parent."""
     runs = [Path(r).resolve() for r in runs]
     if not runs:
         return PROJECT_ROOT
     if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
         return PROJECT_ROOT
     root = Path(os.path.commonpath(runs))
-    # One run, or runs nested in another: two levels up, so that each shows as something more
-    # than "." (<run_name>/<time> in src.train's layout).
-    if root in runs:
-        root = root.parent.parent
+    # Not the time alone: two experiments' runs started in the same second would read alike.
+    while root.parent != root and any(len(r.relative_to(root).parts) < 2 for r in runs):
+        root = root.parent
     return root
 
 
@@ -196,7 +196,7 @@ def load_run(path: Path, root: Path | None = None) -> dict:
         "finished": bool(summary),
         "notes": notes,
         "train_missing_files": facts["last"][1],
-        **{k: summary.get(k) for k in ("wall_time_s", "commit", "device")},
+        **{k: summary.get(k) for k in ("wall_time_s", "train_time_s", "commit", "device")},
     }
 
 
