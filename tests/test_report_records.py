@@ -111,6 +111,21 @@ def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluat
     assert data["evaluated"]["commit"] and data["seed"] == 1
 
 
+def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
+    tmp_path, evaluations, records
+):
+    runs = tmp_path / "out" / "li2018_h36m_s1" / "train" / "runs" / "li2018_h36m"
+    first = make_run(runs / "t1", files=("best-epoch001.ckpt", "last.ckpt"))  # stopped
+    best = first / "checkpoints" / "best-epoch001.ckpt"
+    make_run(runs / "t2", summary={"iterations": 4000, "best_checkpoint": str(best)})
+    report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", "--records", records)
+    (record,) = records.glob("*.json")
+    data = json.loads(record.read_text())
+    assert data["path"] == "li2018_h36m/t2"
+    prov = data["results"]["best"]["srnn"]["provenance"]
+    assert prov["checkpoint"] == "li2018_h36m/t1/checkpoints/best-epoch001.ckpt"
+
+
 @pytest.mark.parametrize(
     "content, says",
     [

@@ -35,16 +35,18 @@ def record_name(run: dict) -> str:
     return f"{name}_seed{run['seed']}_{digest}.json"
 
 
-def _portable(value, run_path: str):
-    """`value` with no machine's absolute path: a checkpoint is named inside the run's shown
-    folder, any other absolute path (data folders, Hydra's run folder) by its last part."""
+def _portable(value, run_path: str, shown: dict[str, str]):
+    """`value` with no machine's absolute path: a checkpoint as the page shows it (`shown`:
+    absolute path -> shown; else inside the run's shown folder), any other absolute path
+    (data folders, Hydra's run folder) by its last part."""
     if isinstance(value, dict):
-        out = {k: _portable(v, run_path) for k, v in value.items()}
-        if isinstance(value.get("checkpoint"), str):
-            out["checkpoint"] = f"{run_path}/checkpoints/{Path(value['checkpoint']).name}"
+        out = {k: _portable(v, run_path, shown) for k, v in value.items()}
+        ckpt = value.get("checkpoint")
+        if isinstance(ckpt, str):
+            out["checkpoint"] = shown.get(ckpt, f"{run_path}/checkpoints/{Path(ckpt).name}")
         return out
     if isinstance(value, list):
-        return [_portable(v, run_path) for v in value]
+        return [_portable(v, run_path, shown) for v in value]
     if isinstance(value, str):
         key, eq, path = value.rpartition("=")  # an override, `paths.log_dir=/x/y`
         if Path(path).is_absolute():
@@ -58,7 +60,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
     record = {
         "format": FORMAT,
         "evaluated": {"commit": commit, "date": date},
-        **{k: _portable(run[k], run["path"]) for k in KEYS},
+        **{k: _portable(run[k], run["path"], run.get("shown_checkpoints", {})) for k in KEYS},
         "notes": run.get("notes", []),
         **{
             k: run[k]

@@ -185,9 +185,14 @@ def load_run(path: Path, root: Path | None = None) -> dict:
     facts = {s: checkpoint_facts(p) for s, p in checkpoints.items()}
     iterations_of = {s: iteration for s, (iteration, _) in facts.items()}
     root = root or PROJECT_ROOT
-    shown = path.relative_to(root) if path.is_relative_to(root) else path
+
+    def shown(p: Path) -> str:
+        return str(p.relative_to(root) if p.is_relative_to(root) else p)
+
     return {
-        "path": str(shown),
+        "path": shown(path),
+        # A resumed run's best checkpoint may lie in an earlier segment's folder.
+        "shown_checkpoints": {str(p): shown(p) for p in checkpoints.values()},
         "config": config,
         "seed": config.get("seed"),
         "checkpoints": checkpoints,
