@@ -22,7 +22,7 @@ from src.lit.checkpoints import CheckpointError
 from src.lit.compose import compose_config
 from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
-from src.lit.resume import restore_run
+from src.lit.resume import describe, restore_run
 from src.lit.run_folders import claim_run_folder
 from src.lit.validation import check_schedule
 from tests.conftest import ROOT
@@ -155,7 +155,7 @@ def test_a_checkpoint_away_from_its_run_folder_resumes_with_the_command_lines_sc
     ckpt = tmp_path / "copied.ckpt"
     torch.save({"motion": {"config": sections}, "state_dict": {}}, ckpt)
     cfg, resume = _restore(tmp_path / "new", synthetic_data_dir, f"ckpt_path={ckpt}", *RUN)
-    assert resume.from_checkpoint
+    assert describe(resume, 3).startswith(f"resuming from {ckpt} at iteration 3, with the config")
     assert (cfg.iterations, cfg.val_every, cfg.seed, cfg.data.steps_per_epoch) == (6, 2, 7, 2)
     assert cfg.model.net.hidden == 16 and cfg.model.optimizer.lr == 0.01
     # What the checkpoint stores still may not change.

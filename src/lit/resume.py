@@ -282,13 +282,15 @@ def restore_run(
 
 
 def describe(resume: Resume, iteration: int) -> str:
-    source = (
-        "the config sections stored in the checkpoint (no config.yaml beside it)"
-        if resume.from_checkpoint
-        else f"its settings ({resume.run_dir / 'config.yaml'})"
-    )
     extra = ", ".join(resume.applied) if resume.applied else "none"
-    return (
-        f"resuming the run {resume.run_dir} at iteration {iteration} from {resume.checkpoint}, "
-        f"with {source}; command-line overrides on top: {extra}"
-    )
+    if resume.from_checkpoint:  # no run folder around it: the folder above names no run
+        start = (
+            f"resuming from {resume.checkpoint} at iteration {iteration}, with the config "
+            "sections stored in the checkpoint (no config.yaml beside it)"
+        )
+    else:
+        start = (
+            f"resuming the run {resume.run_dir} at iteration {iteration} from "
+            f"{resume.checkpoint}, with its settings ({resume.run_dir / 'config.yaml'})"
+        )
+    return f"{start}; command-line overrides on top: {extra}"
