@@ -124,6 +124,17 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     assert data["path"] == "li2018_h36m/t2"
     prov = data["results"]["best"]["srnn"]["provenance"]
     assert prov["checkpoint"] == "li2018_h36m/t1/checkpoints/best-epoch001.ckpt"
+    # A segment outside the folders given (resumed under another paths.log_dir): named by its
+    # file inside the run's folder, not by an absolute path.
+    best = tmp_path / "elsewhere" / "checkpoints" / "best-epoch002.ckpt"
+    best.parent.mkdir(parents=True)
+    best.touch()
+    moved = make_run(tmp_path / "b" / "li2018_h36m" / "t3", summary={"best_checkpoint": str(best)})
+    report(tmp_path, moved, "--records", records)
+    (record,) = records.glob("*.json")
+    assert str(tmp_path) not in record.read_text()
+    prov = json.loads(record.read_text())["results"]["best"]["srnn"]["provenance"]
+    assert prov["checkpoint"] == "li2018_h36m/t3/checkpoints/best-epoch002.ckpt"
 
 
 @pytest.mark.parametrize(

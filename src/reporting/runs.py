@@ -191,8 +191,11 @@ def load_run(path: Path, root: Path | None = None) -> dict:
 
     return {
         "path": shown(path),
-        # A resumed run's best checkpoint may lie in an earlier segment's folder.
-        "shown_checkpoints": {str(p): shown(p) for p in checkpoints.values()},
+        # A resumed run's best checkpoint may lie in an earlier segment's folder. Only those
+        # under `root`: a record names no absolute path.
+        "shown_checkpoints": {
+            str(p): shown(p) for p in checkpoints.values() if p.is_relative_to(root)
+        },
         "config": config,
         "seed": config.get("seed"),
         "checkpoints": checkpoints,
