@@ -106,7 +106,7 @@ def train(cfg: DictConfig) -> float:
     dm.prepare_data()
     dm.setup("fit")
 
-    ckpt = None
+    ckpt = done = None
     if cfg.ckpt_path:
         ckpt = read_checkpoint(cfg.ckpt_path)
         require_resumable(ckpt, cfg.ckpt_path)
@@ -133,7 +133,7 @@ def train(cfg: DictConfig) -> float:
     module = build_module(cfg, dm, run_info=run_info)
     dm.draws_per_step = 2 if module.adversarial else 1
     if ckpt is not None:
-        dm.resume_iteration = int(ckpt["state_dict"]["iteration"])
+        dm.resume_iteration = done
 
     # Under fast_dev_run Lightning swaps this logger for a dummy; only touching
     # logger.experiment (the error-curve layout below) would still write an events file.
@@ -192,7 +192,7 @@ def train(cfg: DictConfig) -> float:
             "iterations": int(module.iteration),
             "wall_time_s": round(wall, 1),  # this process's
             "train_time_s": round(timer.time_elapsed("train"), 1) if total_known else None,
-            "resumed_at": None if ckpt is None else int(ckpt["state_dict"]["iteration"]),
+            "resumed_at": done,
             "commit": run_info["commit"],
             "device": _device_name(trainer),
         }
