@@ -262,7 +262,7 @@ def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
     assert f"`{single['path']}`, which was kept (given first)" in line
     page = build_page([group], [], ["srnn"], "cmd", None, "abc1234")
     assert "li2018_h36m (h36m): 2 seeds (2, 1234)" in page and "(1234, 1234)" not in page
-    assert "**Identical runs counted once.** seed 1234:" in page
+    assert "**Runs counted once.** seed 1234:" in page
     # Of a run and its unfinished earlier copy, the one that trained longer is kept.
     short = copy.deepcopy(single)
     short.update(path="killed", iterations=1000, finished=False)
@@ -271,6 +271,37 @@ def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
         group.runs == [single]
         and "(it trained 4,000 iterations, that one 1,000)" in (group.left_out[0])
     )
+
+
+def test_the_segments_of_a_resumed_run_are_named_as_such_and_a_copy_as_a_copy():
+    def segment(folder, iterations, resumed_from=None):
+        run = seeded(0.0, 3)
+        run.update(path=folder.strip("/"), folder=folder, iterations=iterations)
+        if resumed_from:
+            run["config"]["ckpt_path"] = f"{resumed_from}/checkpoints/last.ckpt"
+        return run
+
+    first = segment("/o/s3/t1", 533)
+    second = segment("/o/s3/t2", 2839, "/o/s3/t1")
+    last = segment("/o/s3/t3", 4000, "/o/s3/t2")
+    copy_ = segment("/o/copy/t1", 1000)  # the same settings and seed, trained apart
+    for order in ([first, second, last, copy_], [copy_, last, second, first]):
+        (group,) = group_runs(order)
+        assert group.runs == [last]
+        lines = sorted(group.left_out)
+        assert lines[0] == (
+            "seed 3: `o/copy/t1` has the same configuration and seed as `o/s3/t3`, which was "
+            "kept (it trained 4,000 iterations, that one 1,000); they count as one seed"
+        )
+        assert lines[1:] == [
+            f"seed 3: `o/s3/{t}` ({n} iterations) is an earlier segment of the resumed run "
+            "`o/s3/t3` (4,000), which was kept"
+            for t, n in (("t1", "533"), ("t2", "2,839"))
+        ]
+    # A copy that was itself resumed from another folder is still a copy.
+    copy_["config"]["ckpt_path"] = "/o/elsewhere/checkpoints/last.ckpt"
+    (group,) = group_runs([last, second, first, copy_])
+    assert sum("same configuration" in line for line in group.left_out) == 1
 
 
 # --- where the page goes ----------------------------------------------------------------------

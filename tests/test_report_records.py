@@ -117,8 +117,12 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     runs = tmp_path / "out" / "li2018_h36m_s1" / "train" / "runs" / "li2018_h36m"
     first = make_run(runs / "t1", files=("best-epoch001.ckpt", "last.ckpt"))  # stopped
     best = first / "checkpoints" / "best-epoch001.ckpt"
-    make_run(runs / "t2", summary={"iterations": 4000, "best_checkpoint": str(best)})
-    report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", "--records", records)
+    summary = {"iterations": 4000, "best_checkpoint": str(best)}
+    make_run(runs / "t2", summary=summary, ckpt_path=str(first / "checkpoints" / "last.ckpt"))
+    page = report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", "--records", records)
+    # The stopped segment is named as the resumed run's, not as a copy of it.
+    assert "`li2018_h36m/t1` (4,000 iterations) is an earlier segment of the resumed run" in page
+    assert "same configuration" not in page
     (record,) = records.glob("*.json")
     data = json.loads(record.read_text())
     assert data["path"] == "li2018_h36m/t2"

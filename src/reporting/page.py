@@ -355,7 +355,7 @@ def how_to_read(groups: list[Group]) -> list[str]:
     ]
     left_out = [line for g in groups for line in g.left_out]
     if left_out:
-        lines += ["**Identical runs counted once.** " + "; ".join(left_out) + ".", ""]
+        lines += ["**Runs counted once.** " + "; ".join(left_out) + ".", ""]
     lines += [
         "**Checkpoints.** *best (test-selected)*: the lowest average Euler error at a validation "
         "during training, on the test windows, as both reference implementations and the "

@@ -3,8 +3,8 @@
 A run folder holds config.yaml beside checkpoints/ or summary.yaml (src.train's layout). Runs
 are grouped by experiment (run_name), dataset and configuration: runs of one group differ only
 in their seed. Two runs with the same configuration and the same seed (a run and a sweep job
-of the same settings, a copy, an unfinished run and its resume) are one seed: one is kept and
-the group says which.
+of the same settings, a copy, the earlier segments of a resumed run) are one seed: one is kept,
+and the group says which, and whether each other is a copy or a segment.
 """
 
 from __future__ import annotations
@@ -191,6 +191,8 @@ def load_run(path: Path, root: Path | None = None) -> dict:
 
     return {
         "path": shown(path),
+        # Only to tell a resumed run's earlier segments (their ckpt_path) apart from copies.
+        "folder": str(path.resolve()),
         # A resumed run's best checkpoint may lie in an earlier segment's folder. Only those
         # under `root`: a record names no absolute path.
         "shown_checkpoints": {
@@ -237,7 +239,8 @@ class Group:
 
     label: short, for tables (`li2018_h36m, reference-code switches`); settings: the config
     values that tell this group apart from the other groups of its experiment (the footnote
-    of its label); left_out: runs identical to a kept one (same configuration and seed)."""
+    of its label); left_out: runs identical to a kept one (same configuration and seed: a copy,
+    or an earlier segment of a resumed run)."""
 
     label: str
     run_name: str
@@ -269,9 +272,28 @@ def _short_label(run_name: str, settings: dict[str, object]) -> str:
     return ", ".join([run_name, *words])
 
 
+def _segments_before(run: dict, members: list[dict]) -> set[str]:
+    """The folders of the runs a resumed run continues: the one its ckpt_path lies in, the
+    one that one resumed from, and so on (src.train writes ckpt_path as given, absolute in
+    every resume the project's scripts make; a relative one cannot be placed and is not
+    followed)."""
+    by_folder = {m["folder"]: m for m in members if m.get("folder")}
+    found: set[str] = set()
+    while (ckpt := run["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
+        folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
+        if folder in found:
+            break
+        found.add(folder)
+        if folder not in by_folder:
+            break
+        run = by_folder[folder]
+    return found
+
+
 def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     """One run per seed: of identical runs, the one that trained longest, then a finished one,
-    then the first given; and a line per run left out saying which was kept."""
+    then the first given; and a line per run left out saying which was kept, and whether it is
+    an earlier segment of the kept run (resumed from its checkpoint) or a copy."""
     kept: dict[object, dict] = {}
     for run in members:
         seed = run.get("seed", run["config"].get("seed"))
@@ -283,18 +305,26 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     for run in members:
         seed = run.get("seed", run["config"].get("seed"))
         chosen = kept[seed]
-        if chosen is not run:
-            if _rank(chosen)[0] != _rank(run)[0]:
-                why = f"it trained {chosen.get('iterations'):,} iterations, that one "
-                why += f"{run.get('iterations'):,}"
-            elif _rank(chosen)[1] != _rank(run)[1]:
-                why = "that one has no summary.yaml (unfinished)"
-            else:
-                why = "given first"
+        if chosen is run:
+            continue
+        if run.get("folder") and run["folder"] in _segments_before(chosen, members):
             lines.append(
-                f"seed {seed}: `{run.get('path')}` has the same configuration and seed as "
-                f"`{chosen.get('path')}`, which was kept ({why}); they count as one seed"
+                f"seed {seed}: `{run.get('path')}` ({run.get('iterations'):,} iterations) is an "
+                f"earlier segment of the resumed run `{chosen.get('path')}` "
+                f"({chosen.get('iterations'):,}), which was kept"
             )
+            continue
+        if _rank(chosen)[0] != _rank(run)[0]:
+            why = f"it trained {chosen.get('iterations'):,} iterations, that one "
+            why += f"{run.get('iterations'):,}"
+        elif _rank(chosen)[1] != _rank(run)[1]:
+            why = "that one has no summary.yaml (unfinished)"
+        else:
+            why = "given first"
+        lines.append(
+            f"seed {seed}: `{run.get('path')}` has the same configuration and seed as "
+            f"`{chosen.get('path')}`, which was kept ({why}); they count as one seed"
+        )
     return [r for r in members if kept[r.get("seed", r["config"].get("seed"))] is r], lines
 
 
