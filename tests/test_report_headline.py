@@ -15,6 +15,7 @@ from src.reporting.page import (
     build_page,
     headline_figure,
     headline_table,
+    how_to_read,
     readme_block,
     summary_table,
 )
@@ -231,6 +232,13 @@ def test_the_headline_counts_the_trained_ablations(n, rows):
     table, notes = headline_table(groups, "srnn", {"h36m": 0.03}, "#ablations")
     (note,) = [line for line in notes if "ablations" in line]
     assert f"Li et al.'s ablations ({rows} Tables 5 and 6, Figure 4)" in note
+
+
+def test_the_seeds_paragraph_lists_the_headline_rows_before_the_ablations():
+    # Records are read in file-name order, which puts li2018_h36m_C10 before li2018_h36m.
+    groups = group_runs([seeded(0.0, 1, ABLATIONS[0]), seeded(0.0, 1), seeded(0.0, 2)])
+    (seeds,) = [line for line in how_to_read(groups) if line.startswith("**Seeds.**")]
+    assert seeds.startswith(f"**Seeds.** li2018_h36m (h36m): 2 seeds (1, 2); {ABLATIONS[0]} (h36m)")
 
 
 def test_settings_that_tell_rows_apart_go_to_a_footnote():

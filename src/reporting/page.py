@@ -342,6 +342,8 @@ def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
 
 
 def how_to_read(groups: list[Group]) -> list[str]:
+    # The headline's rows first, in its order, then the ablations.
+    groups = sorted(groups, key=lambda g: g.run_name in ABLATIONS)
     seeds = "; ".join(
         f"{g.label} ({g.dataset}): {len(g.runs)} seed{'s' if len(g.runs) != 1 else ''} "
         f"({', '.join(str(r['seed']) for r in g.runs)})"
