@@ -301,13 +301,14 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
         other = kept[seed]
         if other is not run and _rank(run) > _rank(other):
             kept[seed] = run
+    segments = {seed: _segments_before(run, members) for seed, run in kept.items()}
     lines = []
     for run in members:
         seed = run.get("seed", run["config"].get("seed"))
         chosen = kept[seed]
         if chosen is run:
             continue
-        if run.get("folder") and run["folder"] in _segments_before(chosen, members):
+        if run.get("folder") in segments[seed]:
             lines.append(
                 f"seed {seed}: `{run.get('path')}` ({run.get('iterations'):,} iterations) is an "
                 f"earlier segment of the resumed run `{chosen.get('path')}` "
