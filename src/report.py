@@ -5,12 +5,12 @@
         --readme README.md --budget "..."
 
 Arguments are run folders (config.yaml, summary.yaml, checkpoints/) or folders holding them,
-such as a multirun of `python -m src.train -m reproduce=papers`. Runs are grouped by experiment
-and dataset, seeds aggregated as mean ± std (src/reporting/runs.py); each run's best and last
-checkpoints and the baselines are evaluated on each protocol (src/reporting/evaluation.py);
-the verdicts and the ablation claims are in src/reporting/verdicts.py and claims.py, the page's
-layout in src/reporting/page.py. Every number on the page comes from those evaluations and the
-published tables; nothing is typed in.
+such as a multirun of `python -m src.train -m reproduce=papers`. Runs are found in
+src/reporting/runs.py and grouped by experiment and dataset in groups.py, seeds aggregated as
+mean ± std; each run's best and last checkpoints and the baselines are evaluated on each
+protocol (src/reporting/evaluation.py); the verdicts and the ablation claims are in
+src/reporting/verdicts.py and claims.py, the page's layout in src/reporting/page.py. Every
+number on the page comes from those evaluations and the published tables; nothing is typed in.
 
 The page and its figure go to the command's own folder (outputs/report/<time>/results.md)
 unless --out names the file; --readme also puts the page's headline between the results
@@ -36,6 +36,7 @@ from pathlib import Path
 
 from src.lit.factory import PROJECT_ROOT, git_commit
 from src.reporting.evaluation import evaluate_baselines, evaluate_run, mark_archives
+from src.reporting.groups import group_runs, note_names, parse_notes
 from src.reporting.page import (
     build_page,
     check_block,
@@ -44,15 +45,7 @@ from src.reporting.page import (
     replace_block,
 )
 from src.reporting.records import read_records, write_record
-from src.reporting.runs import (
-    discover_runs,
-    display_root,
-    group_runs,
-    load_run,
-    note_names,
-    parse_notes,
-    scored_entries,
-)
+from src.reporting.runs import discover_runs, display_root, load_run, scored_entries
 from src.reporting.verdicts import PROTOCOLS, TARGETS
 
 __all__ = ["main", "replace_block"]

@@ -11,6 +11,7 @@ import pytest
 
 from src.report import main, new_folder
 from src.reporting.claims import ABLATIONS, claims, claims_section
+from src.reporting.groups import group_runs
 from src.reporting.page import (
     build_page,
     headline_figure,
@@ -20,7 +21,7 @@ from src.reporting.page import (
     summary_table,
 )
 from src.reporting.published import KNOWN_SLIPS, published_for
-from src.reporting.runs import display_root, group_runs
+from src.reporting.runs import display_root
 from src.reporting.tables import AVERAGE, ResultTable, same_set_average
 from src.reporting.verdicts import gap_lines, judge, references, slip_lines
 from tests.test_report import ABSENT, MS, fake_run, make_run, offset_result, offset_run

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from src.reporting.groups import Group
 from src.reporting.published import published_table
-from src.reporting.runs import Group
 from src.reporting.tables import AVERAGE
 from src.reporting.verdicts import (
     HORIZONS,

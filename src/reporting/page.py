@@ -16,9 +16,9 @@ from pathlib import Path
 
 from src.lit.factory import git_commit
 from src.reporting.claims import ABLATIONS, claims_section
+from src.reporting.groups import Group
 from src.reporting.plots import Curve, horizon_panels
 from src.reporting.published import known_slips
-from src.reporting.runs import Group
 from src.reporting.seed_table import SeedTable, Stat
 from src.reporting.tables import fmt, printed_scope, table_from_dict
 from src.reporting.verdicts import (

@@ -19,7 +19,7 @@ import json
 import re
 from pathlib import Path
 
-from src.reporting.runs import identity
+from src.reporting.groups import identity
 
 FORMAT = 1
 KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")

@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from src.reporting.evaluation import SELECTIONS
+from src.reporting.groups import Group
 from src.reporting.published import known_slips, published_beside, published_for
-from src.reporting.runs import Group
 from src.reporting.seed_table import SeedTable
 from src.reporting.tables import same_set_average, table_from_dict
 
