@@ -7,6 +7,7 @@ import hydra
 import lightning as L
 import pytest
 import torch
+import yaml
 
 from src.lit.factory import build_datamodule, build_module
 from tests.conftest import run_module
@@ -164,6 +165,7 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from src.eval import evaluate
+    from src.reporting.tensorboard import validation_curve
     from src.train import train
     from tests.conftest import compose_config
 
@@ -186,6 +188,14 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
     assert [e.value for e in events.Scalars("train/lr")] == pytest.approx(
         [cfg.model.optimizer.lr] * len(events.Scalars("train/lr"))
     )
+    # src.report's reading of the validations: after 2 and 4 iterations (val_every=2), each
+    # horizon's average; their mean at the end is the summary's final error.
+    curve = validation_curve(out)
+    logged = {int(t[-6:-2]) for t in tags if t.startswith("val_euler/average/")}
+    assert list(curve) == [2, 4] and set(curve[4]) == logged and logged
+    summary = yaml.safe_load((out / "summary.yaml").read_text())
+    final = sum(curve[4].values()) / len(curve[4])
+    assert final == pytest.approx(summary["final_val_euler_avg"], rel=1e-5)
 
     eval_cfg = compose_config(
         "eval",

@@ -139,6 +139,14 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
         if other is not run and _rank(run) > _rank(other):
             kept[seed] = run
     segments = {seed: _segments_before(run, members) for seed, run in kept.items()}
+    for seed, run in kept.items():
+        # The kept run's validation curve over every segment: each folder logged its own part.
+        earlier = [m for m in members if m.get("folder") in segments[seed]]
+        if earlier and "validations" in run:
+            curve: dict[int, dict[int, float]] = {}
+            for part in [*earlier, run]:
+                curve.update(part.get("validations") or {})
+            run["validations"] = dict(sorted(curve.items()))
     lines = []
     for run in members:
         seed = run.get("seed", run["config"].get("seed"))

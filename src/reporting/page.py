@@ -41,6 +41,7 @@ from src.reporting.verdicts import (
     slip_lines,
     stored_published,
     training_data_line,
+    validation_text,
 )
 
 SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
@@ -402,7 +403,14 @@ def target_paragraph(
     text += "Rows that miss it: " + "; ".join(
         f"{label} ({notes.get(label, 'no explanation given')})" for label in missed
     )
-    return [text + ".", ""]
+    text += "."
+    # Whether a miss is one checkpoint's or the whole run's: its error at every validation.
+    for group in checked:
+        if group.label in missed:
+            judgement = judge(group, protocol, targets[group.dataset])
+            curve = validation_text(group, protocol, judgement)
+            text += f" {curve}" if curve else ""
+    return [text, ""]
 
 
 def _group_section(

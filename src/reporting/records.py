@@ -73,6 +73,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
                 "missing_files",
                 "train_missing_files",
                 "archive_sha256",
+                "validations",
             )
             if k in run
         },
@@ -125,5 +126,10 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
             f"record {path.name}: evaluated at {evaluated['commit']} on {evaluated['date']}",
         ]
         record["recorded"] = True
+        if "validations" in record:  # JSON's keys are text: iterations and horizons again
+            record["validations"] = {
+                int(i): {int(ms): v for ms, v in errors.items()}
+                for i, errors in record["validations"].items()
+            }
         runs.append(record)
     return runs

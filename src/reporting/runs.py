@@ -13,6 +13,7 @@ from pathlib import Path
 import yaml
 
 from src.lit.factory import PROJECT_ROOT
+from src.reporting.tensorboard import validation_curve
 from src.results import read_results
 
 
@@ -168,6 +169,8 @@ def load_run(path: Path, root: Path | None = None) -> dict:
         "finished": bool(summary),
         "notes": notes,
         "train_missing_files": facts["last"][1],
+        # This folder's own validations; a resumed run gets its earlier segments' in groups.py.
+        "validations": validation_curve(path),
         **{k: summary.get(k) for k in ("wall_time_s", "train_time_s", "commit", "device")},
     }
 

@@ -1,6 +1,11 @@
-"""TensorBoard layout: one chart per action holding the error curves of all its horizons."""
+"""TensorBoard: the layout of the error curves src.train writes, and the validation curve
+src.report reads back from a run folder."""
 
 from __future__ import annotations
+
+from pathlib import Path
+
+AVERAGE_TAG = "val_euler/average/"
 
 
 def error_curve_layout(actions: list[str], horizons: dict[int, int]) -> dict:
@@ -19,3 +24,23 @@ def error_curve_layout(actions: list[str], horizons: dict[int, int]) -> dict:
 
 def add_error_curve_layout(writer, actions: list[str], horizons: dict[int, int]) -> None:
     writer.add_custom_scalars(error_curve_layout(actions, horizons))
+
+
+def validation_curve(run: Path) -> dict[int, dict[int, float]]:
+    """{iterations done: {ms: average Euler error over the evaluated actions}} at each
+    validation of the run folder, from its TensorBoard events; {} without them. A validation is
+    logged at the step of the last iteration before it (steps count from 0), so after `step + 1`
+    iterations; tests/test_train.py checks this against a short run."""
+    folder = Path(run) / "tensorboard"
+    if not any(folder.glob("events.out.tfevents.*")):
+        return {}
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(folder), size_guidance={"scalars": 0}).Reload()
+    curve: dict[int, dict[int, float]] = {}
+    for tag in events.Tags()["scalars"]:
+        if tag.startswith(AVERAGE_TAG) and tag.endswith("ms"):
+            ms = int(tag[len(AVERAGE_TAG) : -2])
+            for event in events.Scalars(tag):  # a step logged twice: the later value
+                curve.setdefault(event.step + 1, {})[ms] = float(event.value)
+    return dict(sorted(curve.items()))

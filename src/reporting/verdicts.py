@@ -12,12 +12,13 @@ not.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 from src.reporting.evaluation import SELECTIONS
 from src.reporting.groups import Group
 from src.reporting.published import known_slips, published_beside, published_for
 from src.reporting.seed_table import SeedTable
-from src.reporting.tables import same_set_average, table_from_dict
+from src.reporting.tables import fmt, same_set_average, table_from_dict
 
 PROTOCOLS = {
     "srnn": "8 windows per action (SRNN seeds, the papers' protocol)",
@@ -232,6 +233,51 @@ def missed_targets(groups: list[Group], protocol: str, targets: dict) -> list[st
     return [
         g.label for g in groups if judge(g, protocol, targets.get(g.dataset)).status == "misses"
     ]
+
+
+def validation_means(group: Group, protocol: str) -> dict[int, dict[int, float]]:
+    """{iterations: {ms: mean over seeds}} of the average Euler error at the validations every
+    seed of the group made (their TensorBoard curves); {} when some run has no curve or
+    validated on another protocol than `protocol`."""
+    curves = [r.get("validations") or {} for r in group.runs]
+    if not all(curves) or any(
+        r["config"]["data"].get("eval_protocol", "srnn") != protocol for r in group.runs
+    ):
+        return {}
+    common = set.intersection(*(set(c) for c in curves))
+    return {
+        i: {
+            ms: sum(c[i][ms] for c in curves) / len(curves)
+            for ms in curves[0][i]
+            if all(ms in c[i] for c in curves)
+        }
+        for i in sorted(common)
+    }
+
+
+def validation_text(group: Group, protocol: str, judgement: Judgement) -> str | None:
+    """Where a checkpoint misses, the group's error at those horizons at each of its
+    validations (mean over seeds) beside the published value: whether the miss is that of one
+    checkpoint or of the whole run. None without validation curves."""
+    means = validation_means(group, protocol)
+    horizons = sorted({ms for hs in (judgement.missed or {}).values() for ms in hs})
+    if not means or not horizons or judgement.reference is None:
+        return None
+    published = seed_table(group, "last", protocol, "euler", judgement.reference)
+    same = published.published_same_set()
+    steps = list(means)
+    when = f"iterations {steps[0]:,} to {steps[-1]:,}"
+    gaps = {b - a for a, b in pairwise(steps)}
+    if len(gaps) == 1:
+        when += f", every {gaps.pop():,}"
+    if len(group.runs) > 1:
+        when += f"; mean over {len(group.runs)} seeds"
+    parts = [
+        " ".join(fmt(means[i].get(ms), 2) for i in steps)
+        + f" at {ms} ms (published {fmt(same.get(ms), 2)})"
+        for ms in horizons
+    ]
+    return f"{group.label} at each validation ({when}): " + ", ".join(parts) + "."
 
 
 def gap_lines(group: Group, selection: str, protocol: str, target: float | None) -> list[str]:

@@ -1,0 +1,121 @@
+"""The validation curve of a run (its TensorBoard's average Euler error at each validation):
+read back from the events src.train writes, joined over the segments of a resumed run, kept in
+a run's record, and shown where a row misses its target, so that a reader sees whether the miss
+is one checkpoint's or the whole run's. The slow check that the logger's steps are the
+iterations is in tests/test_train.py::test_short_run_checkpoints_logs_and_evaluates."""
+
+import pytest
+
+from src.reporting.groups import group_runs
+from src.reporting.page import build_page
+from src.reporting.published import published_for
+from src.reporting.records import read_records, write_record
+from src.reporting.tables import same_set_average
+from src.reporting.tensorboard import validation_curve
+from src.reporting.verdicts import validation_means
+from tests.test_report import ABSENT
+from tests.test_report_headline import EVALUATED, seeded
+
+TARGETS = {"h36m": 0.03}
+
+
+def test_the_curve_is_the_average_per_horizon_at_each_validation(tmp_path):
+    from torch.utils.tensorboard import SummaryWriter
+
+    assert validation_curve(tmp_path) == {}  # no tensorboard folder: no curve
+    writer = SummaryWriter(str(tmp_path / "tensorboard"))
+    for step, value in ((499, 1.5), (999, 1.25)):
+        writer.add_scalar("val_euler/average/0080ms", value / 4, step)
+        writer.add_scalar("val_euler/average/1000ms", value, step)
+        writer.add_scalar("val_euler/walking/1000ms", 9.0, step)  # one action, not the average
+        writer.add_scalar("val/euler_avg", 9.0, step)
+        writer.add_scalar("val_mpjpe/average/1000ms", 9.0, step)
+    writer.add_scalar("train/loss_d", 9.0, 700)
+    writer.close()
+    assert validation_curve(tmp_path) == {
+        500: {80: 0.375, 1000: 1.5},
+        1000: {80: 0.3125, 1000: 1.25},
+    }
+
+
+def with_curve(run: dict, curve: dict[int, float]) -> dict:
+    run["validations"] = {i: {80: 0.4, 1000: v} for i, v in curve.items()}
+    return run
+
+
+def test_a_resumed_runs_curve_joins_its_segments():
+    first = with_curve(seeded(0.0, 1), {500: 1.9, 1000: 1.8})
+    first.update(folder="/o/t1", iterations=1200)
+    last = with_curve(seeded(0.0, 1), {1500: 1.7, 2000: 1.6})
+    last.update(folder="/o/t2", iterations=2000)
+    last["config"]["ckpt_path"] = "/o/t1/checkpoints/last.ckpt"
+    copy_ = with_curve(seeded(0.0, 1), {500: 9.0})  # same seed, trained apart: not joined
+    copy_.update(folder="/elsewhere/t1", iterations=500)
+    (group,) = group_runs([copy_, first, last])
+    assert group.runs == [last]
+    assert {i: e[1000] for i, e in last["validations"].items()} == {
+        500: 1.9,
+        1000: 1.8,
+        1500: 1.7,
+        2000: 1.6,
+    }
+
+
+def test_a_miss_shows_the_error_at_each_validation_beside_the_published_value():
+    published, _ = published_for({"paper": "li2018", "method": "conv_s2s"}, "h36m")
+    at_1000 = same_set_average(published, EVALUATED, [1000])[1000]
+    # The last checkpoint misses by 0.05 at every horizon; seed 3 also validated at 1,500.
+    runs = [
+        with_curve(seeded(0.05, 1), {500: 1.80, 1000: 1.76}),
+        with_curve(seeded(0.05, 2), {500: 1.90, 1000: 1.74}),
+        with_curve(seeded(0.05, 3), {500: 1.70, 1000: 1.72, 1500: 9.0}),
+    ]
+    assert list(validation_means(group_runs(runs)[0], "srnn")) == [500, 1000]
+    page = build_page(group_runs(runs), [], ["srnn"], "cmd", None, "abc", TARGETS)
+    assert "Rows that miss it: li2018_h36m (no explanation given). li2018_h36m at each " in page
+    assert (
+        "li2018_h36m at each validation (iterations 500 to 1,000, every 500; mean over 3 seeds): "
+        "0.40 0.40 at 80 ms (published 0.39), " in page
+    )
+    assert f"1.80 1.74 at 1000 ms (published {at_1000:.2f})." in page
+    # A note comes first; the curve still follows. Where the horizons named are those missed.
+    noted = build_page(group_runs(runs), [], ["srnn"], "cmd", None, "abc", TARGETS, {
+        "li2018_h36m": "a short budget"
+    })  # fmt: skip
+    assert "li2018_h36m (a short budget). li2018_h36m at each validation" in noted
+    for ms in (80, 160, 320, 400):
+        assert f"at {ms} ms (published" in noted
+    assert "at 560 ms" not in noted  # no published value there, so it cannot miss
+    # Without curves (a run logged elsewhere, an older record) the row is named as before.
+    for run in runs:
+        run["validations"] = {}
+    bare = build_page(group_runs(runs), [], ["srnn"], "cmd", None, "abc", TARGETS)
+    assert "li2018_h36m (no explanation given)." in bare and "each validation" not in bare
+    # A row that reproduces gets no curve.
+    fine = [with_curve(seeded(0.0, s), {500: 1.7}) for s in (1, 2)]
+    assert "each validation" not in build_page(
+        group_runs(fine), [], ["srnn"], "cmd", None, "abc", TARGETS
+    )
+
+
+def test_a_curve_validated_on_another_protocol_is_not_shown():
+    run = with_curve(seeded(0.05, 1), {500: 1.8})
+    run["config"]["data"]["eval_protocol"] = "random"
+    assert validation_means(group_runs([run])[0], "srnn") == {}
+
+
+def test_a_record_keeps_the_curve_with_its_numbers_as_numbers(tmp_path):
+    run = with_curve(seeded(0.0, 1, absent=ABSENT), {500: 1.8, 1000: 1.75})
+    write_record(run, tmp_path, "abc", "2026-01-01")
+    (again,) = read_records(tmp_path, ["srnn"])
+    assert again["validations"] == {500: {80: 0.4, 1000: 1.8}, 1000: {80: 0.4, 1000: 1.75}}
+
+
+@pytest.mark.parametrize("curve", [{}, None])
+def test_a_record_without_a_curve_reads_as_none(tmp_path, curve):
+    run = seeded(0.0, 1)
+    if curve is not None:
+        run["validations"] = curve
+    write_record(run, tmp_path, "abc", "2026-01-01")
+    (again,) = read_records(tmp_path, ["srnn"])
+    assert not again.get("validations")
