@@ -44,7 +44,7 @@ from src.reporting.page import (
     readme_block,
     replace_block,
 )
-from src.reporting.records import read_records, write_record
+from src.reporting.records import read_records, record_name, write_record
 from src.reporting.runs import discover_runs, display_root, load_run, scored_entries
 from src.reporting.verdicts import PROTOCOLS, TARGETS
 
@@ -61,6 +61,14 @@ def new_folder(base: Path) -> Path:
         except FileExistsError:
             n += 1
             candidate = base.with_name(f"{base.name}-{n}")
+
+
+def same_folder(a: str, b: str) -> bool:
+    """Whether two shown paths name one run folder: each is relative to the root of the report
+    that showed it (src/reporting/runs.py display_root), so the shorter ends the longer."""
+    pa, pb = Path(a).parts, Path(b).parts
+    n = min(len(pa), len(pb))
+    return n > 0 and pa[-n:] == pb[-n:]
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -157,8 +165,14 @@ def main(argv: list[str] | None = None) -> int:
     paths = discover_runs(args.runs)
     root = display_root(paths)
     runs = [load_run(path, root) for path in paths]
-    # After the run folders: a folder given again wins over its record (and re-records it).
-    runs += read_records(args.records, args.protocols) if args.records is not None else []
+    # After the run folders: a folder given again replaces its record (and re-records it).
+    if args.records is not None:
+        given = [(record_name(r), r["path"]) for r in runs]
+        runs += [
+            r
+            for r in read_records(args.records, args.protocols)
+            if not any(record_name(r) == name and same_folder(r["path"], p) for name, p in given)
+        ]
     groups = group_runs(runs)  # from the configs alone: a bad --note fails before evaluating
     notes = parse_notes(args.note, note_names(groups))
     scored = scored_entries(args.scored, args.protocols)  # read before anything is evaluated

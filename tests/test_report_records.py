@@ -94,9 +94,15 @@ def test_the_same_run_given_again_counts_once_and_replaces_its_record(
     assert len(evaluations) == 2  # the folder given wins over its record, and is evaluated
     assert len(list(records.glob("*.json"))) == 1
     assert page.count("| li2018_h36m | 1 |") == 1
+    assert "same configuration and seed" not in page  # not a copy of itself
+    # Given beside a run from elsewhere, it shows under a longer path: still its own record.
+    other = seed_run(tmp_path / "elsewhere", 2)
+    page = report(tmp_path, run, other, "--records", records)
+    assert "`runs/li2018_h36m_s1/t`" in page and "same configuration and seed" not in page
+    assert page.count("| li2018_h36m | 1 |") == 1 and len(list(records.glob("*.json"))) == 2
     # Another experiment of the same seed is another record, not a replacement.
     report(tmp_path, seed_run(tmp_path, 1, "li2018_h36m_C10"), "--records", records)
-    assert len(list(records.glob("*.json"))) == 2
+    assert len(list(records.glob("*.json"))) == 3
 
 
 def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluations, records):
