@@ -98,6 +98,12 @@ def test_a_miss_shows_the_error_at_each_validation_beside_the_published_value():
     )
 
 
+def test_one_validation_of_one_seed():
+    (group,) = group_runs([with_curve(seeded(0.05, 1), {500: 1.8})])
+    page = build_page([group], [], ["srnn"], "cmd", None, "abc", TARGETS)
+    assert "li2018_h36m at each validation (iteration 500): 0.40 at 80 ms" in page
+
+
 def test_a_curve_validated_on_another_protocol_is_not_shown():
     run = with_curve(seeded(0.05, 1), {500: 1.8})
     run["config"]["data"]["eval_protocol"] = "random"

@@ -266,7 +266,7 @@ def validation_text(group: Group, protocol: str, judgement: Judgement) -> str | 
     published = seed_table(group, "last", protocol, "euler", judgement.reference)
     same = published.published_same_set()
     steps = list(means)
-    when = f"iterations {steps[0]:,} to {steps[-1]:,}"
+    when = f"iterations {steps[0]:,} to {steps[-1]:,}" if steps[1:] else f"iteration {steps[0]:,}"
     gaps = {b - a for a, b in pairwise(steps)}
     if len(gaps) == 1:
         when += f", every {gaps.pop():,}"
