@@ -41,6 +41,7 @@ from src.reporting.page import (
     build_page,
     check_block,
     headline_figure,
+    page_order,
     readme_block,
     replace_block,
 )
@@ -173,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
             for r in read_records(args.records, args.protocols)
             if not any(record_name(r) == name and same_folder(r["path"], p) for name, p in given)
         ]
-    groups = group_runs(runs)  # from the configs alone: a bad --note fails before evaluating
+    # From the configs alone: a bad --note fails before evaluating.
+    groups = page_order(group_runs(runs))
     notes = parse_notes(args.note, note_names(groups))
     scored = scored_entries(args.scored, args.protocols)  # read before anything is evaluated
 

@@ -17,6 +17,7 @@ from src.reporting.page import (
     headline_figure,
     headline_table,
     how_to_read,
+    page_order,
     readme_block,
     summary_table,
 )
@@ -235,11 +236,22 @@ def test_the_headline_counts_the_trained_ablations(n, rows):
     assert f"Li et al.'s ablations ({rows} Tables 5 and 6, Figure 4)" in note
 
 
-def test_the_seeds_paragraph_lists_the_headline_rows_before_the_ablations():
-    # Records are read in file-name order, which puts li2018_h36m_C10 before li2018_h36m.
-    groups = group_runs([seeded(0.0, 1, ABLATIONS[0]), seeded(0.0, 1), seeded(0.0, 2)])
+def test_the_page_lists_h36m_then_cmu_then_the_ablations():
+    # Records are read in file-name order: li2018_cmu, li2018_h36m_C10, li2018_h36m, martinez.
+    found = [
+        seeded(0.0, 1, "li2018_cmu", "cmu", {}),
+        seeded(0.0, 1, ABLATIONS[0]),
+        seeded(0.0, 1),
+        seeded(0.0, 2),
+        gru_run(1, 0.0),
+    ]
+    groups = page_order(group_runs(found))
+    order = ["li2018_h36m", "martinez2017_res_sup", "li2018_cmu", ABLATIONS[0]]
+    assert [g.label for g in groups] == order
     (seeds,) = [line for line in how_to_read(groups) if line.startswith("**Seeds.**")]
-    assert seeds.startswith(f"**Seeds.** li2018_h36m (h36m): 2 seeds (1, 2); {ABLATIONS[0]} (h36m)")
+    assert seeds.startswith("**Seeds.** li2018_h36m (h36m): 2 seeds (1, 2); martinez2017_res_sup")
+    rows = [r for r in readme_block(groups, "srnn", "abc").splitlines() if "| ours, best |" in r]
+    assert [r.split(" | ")[0].strip("| ") for r in rows] == order[:3]
 
 
 def test_settings_that_tell_rows_apart_go_to_a_footnote():

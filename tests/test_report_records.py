@@ -177,3 +177,19 @@ def test_a_bad_record_is_refused_naming_the_file_and_the_fix(
 def test_a_records_folder_that_does_not_exist_is_refused(tmp_path, evaluations):
     with pytest.raises(SystemExit, match="is not a folder"):
         main(["--records", str(tmp_path / "nope"), "--datasets", "none", "--budget", "b"])
+
+
+def test_the_page_puts_h36m_before_cmu_whatever_the_records_file_names(
+    tmp_path, evaluations, records
+):
+    cmu = make_run(
+        tmp_path / "runs" / "li2018_cmu_s1" / "t",
+        summary={"iterations": 4000},
+        run_name="li2018_cmu",
+        data={"name": "cmu", "seed": 1},
+    )
+    report(tmp_path, cmu, seed_run(tmp_path, 1), "--records", records)
+    assert sorted(p.name[:10] for p in records.glob("*.json")) == ["li2018_cmu", "li2018_h36"]
+    page = report(tmp_path, "--records", records)
+    rows = [line for line in page.splitlines() if "| ours, best |" in line]
+    assert [row.split(" | ")[0] for row in rows] == ["| li2018_h36m", "| li2018_cmu"]

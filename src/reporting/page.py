@@ -71,6 +71,14 @@ def _ms_list(horizons: list[int]) -> str:
 
 
 # ---------------------------------------------------------------------------- the headline
+def page_order(groups: list[Group]) -> list[Group]:
+    """The page's order: Human3.6M's rows, then CMU's, then any other data (both papers' order),
+    the ablations last; otherwise as found (records are read in file-name order, which would
+    put li2018_cmu first)."""
+    rank = {"h36m": 0, "cmu": 1}
+    return sorted(groups, key=lambda g: (g.run_name in ABLATIONS, rank.get(g.dataset, 2)))
+
+
 def headline_groups(groups: list[Group]) -> list[Group]:
     """The groups of the headline: all but Li et al.'s ablations, which have their section
     (and all of them when nothing else was trained)."""
@@ -343,8 +351,6 @@ def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
 
 
 def how_to_read(groups: list[Group]) -> list[str]:
-    # The headline's rows first, in its order, then the ablations.
-    groups = sorted(groups, key=lambda g: g.run_name in ABLATIONS)
     seeds = "; ".join(
         f"{g.label} ({g.dataset}): {len(g.runs)} seed{'s' if len(g.runs) != 1 else ''} "
         f"({', '.join(str(r['seed']) for r in g.runs)})"
