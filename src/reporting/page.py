@@ -33,7 +33,6 @@ from src.reporting.verdicts import (
     gap_lines,
     judge,
     mean_average,
-    missed_targets,
     printed_gap,
     references,
     seed_table,
@@ -387,7 +386,8 @@ def target_paragraph(
     checked = [g for g in groups if g.dataset in targets]
     if not checked:
         return []
-    missed = missed_targets(checked, protocol, targets)
+    judged = [(g, judge(g, protocol, targets[g.dataset])) for g in checked]  # once per row
+    missed = [g.label for g, j in judged if j.status == "misses"]
     goal = ", ".join(f"{d} {t:.2f}" for d, t in targets.items())
     text = (
         "**Reproduction target.** A trained row reproduces its paper when its average is within "
@@ -395,9 +395,7 @@ def target_paragraph(
         f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints, against the "
         "reference its verdict names. "
     )
-    unjudged = [
-        g.label for g in checked if judge(g, protocol, targets[g.dataset]).status == "not judged"
-    ]
+    unjudged = [g.label for g, j in judged if j.status == "not judged"]
     if unjudged:
         text += (
             "Not judged (their paper prints an average only, over all of its actions, so there "
@@ -411,11 +409,11 @@ def target_paragraph(
     )
     text += "."
     # Whether a miss is one checkpoint's or the whole run's: its error at every validation.
-    for group in checked:
-        if group.label in missed:
-            judgement = judge(group, protocol, targets[group.dataset])
-            curve = validation_text(group, protocol, judgement)
-            text += f" {curve}" if curve else ""
+    for group, judgement in judged:
+        curve = (
+            validation_text(group, protocol, judgement) if judgement.status == "misses" else None
+        )
+        text += f" {curve}" if curve else ""
     return [text, ""]
 
 
