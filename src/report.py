@@ -9,8 +9,9 @@ such as a multirun of `python -m src.train -m reproduce=papers`. Runs are found 
 src/reporting/runs.py and grouped by experiment and dataset in groups.py, seeds aggregated as
 mean ± std; each run's best and last checkpoints and the baselines are evaluated on each
 protocol (src/reporting/evaluation.py); the verdicts and the ablation claims are in
-src/reporting/verdicts.py and claims.py, the page's layout in src/reporting/page.py. Every
-number on the page comes from those evaluations and the published tables; nothing is typed in.
+src/reporting/verdicts.py and claims.py, the page's layout in src/reporting/page.py and its
+headline (also the README's block) in headline.py. Every number on the page comes from those
+evaluations and the published tables; nothing is typed in.
 
 The page and its figure go to the command's own folder (outputs/report/<time>/results.md)
 unless --out names the file; --readme also puts the page's headline between the results
@@ -37,14 +38,14 @@ from pathlib import Path
 from src.lit.factory import PROJECT_ROOT, git_commit
 from src.reporting.evaluation import evaluate_baselines, evaluate_run, mark_archives
 from src.reporting.groups import group_runs, note_names, parse_notes
-from src.reporting.page import (
-    build_page,
+from src.reporting.headline import (
     check_block,
     headline_figure,
     page_order,
     readme_block,
     replace_block,
 )
+from src.reporting.page import build_page
 from src.reporting.records import read_records, record_name, write_record
 from src.reporting.runs import discover_runs, display_root, load_run, scored_entries
 from src.reporting.verdicts import PROTOCOLS, TARGETS

@@ -12,7 +12,8 @@ import yaml
 from src.report import main, replace_block
 from src.reporting.evaluation import evaluate_run
 from src.reporting.groups import group_runs, parse_notes
-from src.reporting.page import build_page, provenance_table, readme_block, summary_table
+from src.reporting.headline import readme_block
+from src.reporting.page import build_page, provenance_table, summary_table
 from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
 from src.reporting.runs import discover_runs, find_checkpoints
 from src.reporting.tables import AVERAGE, ResultTable, same_set_average

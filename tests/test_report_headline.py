@@ -12,15 +12,8 @@ import pytest
 from src.report import main, new_folder
 from src.reporting.claims import ABLATIONS, claims, claims_section
 from src.reporting.groups import group_runs
-from src.reporting.page import (
-    build_page,
-    headline_figure,
-    headline_table,
-    how_to_read,
-    page_order,
-    readme_block,
-    summary_table,
-)
+from src.reporting.headline import headline_figure, headline_table, page_order, readme_block
+from src.reporting.page import build_page, how_to_read, summary_table
 from src.reporting.published import KNOWN_SLIPS, published_for
 from src.reporting.runs import display_root
 from src.reporting.tables import AVERAGE, ResultTable, same_set_average
