@@ -703,9 +703,7 @@ def test_martinez2017_res_sup_builds_the_reference_settings(tmp_path, bases, syn
     assert trace.etas == [1.0, 1.0]
     first = trace.of("g")[0]
     net = objects.networks(small)[0]
-    with torch.no_grad():
-        for name, p in net.named_parameters():
-            p.copy_(first.weights[name])
+    set_weights(net, first.weights)
     params = dict(net.named_parameters())
     T = batch["future"].shape[1]
     prediction = net.train()(batch["observed"], T, action=batch["action"], future=batch["future"])
