@@ -1,194 +1,351 @@
-"""The results page (docs/results.md): layout only.
+"""The results page (docs/results.md), its per-action CSV files and figures, and the README's
+Results block, laid out from `Results` (frame.py), which decides what the numbers mean.
 
-The page opens with the headline (headline.py, which is also the README's Results block).
-Then the budget and how to read the numbers, the ablation claims, the settings compared,
-provenance, the per-action tables of the papers' protocol, the other protocols, MPJPE and the
-command. What the numbers mean is decided in verdicts.py and claims.py; this file only lays
-them out.
+The page opens with the headline (also the README block): every trained experiment at each
+budget, its verdict, the published same-set averages with ours minus them, the zero-velocity
+yardstick and why a row misses. Then the budget, how to read the numbers, the ablation claims,
+provenance, the averages of each protocol and metric, the per-action CSVs and the command.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+from pathlib import Path
 
-from src.lit.factory import git_commit
+import pandas as pd
+
+from src.lit.factory import ConfigError
+from src.plots import Curve, line_panels
 from src.reporting.claims import claims_section
-from src.reporting.groups import Group
-from src.reporting.headline import ABLATIONS_HEADING, anchor, headline, headline_groups, stat_cells
-from src.reporting.published import known_slips
-from src.reporting.seed_table import SeedTable
-from src.reporting.tables import fmt, printed_scope, table_from_dict
-from src.reporting.verdicts import (
+from src.reporting.frame import (
     HORIZONS,
     PROTOCOLS,
     SELECTION_LABELS,
     SELECTIONS,
-    TARGETS,
-    comparison_lines,
-    gap_lines,
-    judge,
-    references,
-    seed_table,
-    slip_lines,
-    stored_published,
-    training_data_line,
-    validation_text,
+    Results,
+    missing_of,
+    printed_gap,
+    signed,
+    stat,
+    training_files,
+)
+from src.reporting.groups import Group
+from src.reporting.published import REFERENCE_CODE_CHECKED, known_slips
+from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
+
+SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
+COLS = [f"{ms} ms" for ms in HORIZONS]
+TITLES = (
+    "Average Euler error against horizon, ours and published",
+    "Mean validation error at 400 and 1000 ms against iteration, published as lines",
 )
 
 
-def _range(values: list[int | None]) -> str:
+def _cells(average: dict, decimals: int = 2) -> list[str]:
+    return [stat(*average[ms], decimals) if ms in average else "-" for ms in HORIZONS]
+
+
+def _range(values) -> str:
     known = sorted({v for v in values if v is not None})
-    if not known:
-        return "-"
-    if len(known) == 1:
-        return f"{known[0]:,}"
-    return f"{known[0]:,}–{known[-1]:,}"
+    return "-" if not known else f"{known[0]:,}" + (f"–{known[-1]:,}" if known[1:] else "")
 
 
-def summary_table(groups: list[Group], baselines: list[dict], metric: str, protocol: str) -> str:
-    decimals = 2 if metric == "euler" else 1
-    lines = [
-        "| experiment | dataset | checkpoint | seeds | iterations | "
-        + " | ".join(f"{h} ms" for h in HORIZONS)
-        + " |",
-        "|---|---|---|---:|---:|" + "---:|" * len(HORIZONS),
-    ]
+def _ms(horizons: list[int]) -> str:
+    return ", ".join(map(str, horizons)) + " ms"
+
+
+def headline_groups(results: Results) -> list[Group]:
+    """All but Li et al.'s ablations, which have their section (all when nothing else)."""
+    return [g for g in results.groups if not g.ablation] or list(results.groups)
+
+
+def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
+    """{g: judgement} of each of `groups` that gets a verdict: an experiment's longest budget
+    (groups come longest first)."""
+    judged, seen = {}, set()
     for group in groups:
-        for selection in SELECTIONS:
-            table = seed_table(group, selection, protocol, metric)
-            if selection == "best":
-                best = _range([r["iterations_of"]["best"] for r in group.runs])
-                iterations = f"{best} of {_range([r['iterations'] for r in group.runs])}"
-            else:
-                iterations = _range([r["iterations"] for r in group.runs])
-            lines.append(
-                f"| {group.label} | {group.dataset} | {SELECTION_LABELS[selection]} | "
-                f"{table.n} | {iterations} | "
-                + " | ".join(stat_cells(table.average(), decimals))
-                + " |"
-            )
-        if metric == "euler":
-            for reference in references(group):
-                table = seed_table(group, "best", protocol, metric, reference)
-                lines += _published_rows(group.label, group.dataset, table)
-    for entry in baselines:
-        result = entry["results"][protocol]
-        table_dict = result["tables"][0 if metric == "euler" else 1]
-        published = stored_published(table_dict, entry["dataset"]) if metric == "euler" else None
-        table = SeedTable(
-            entry["label"],
-            [table_from_dict(table_dict)],
-            published,
-            table_dict.get("published_label"),
-        )
-        lines.append(
-            f"| {entry['label']} | {entry['dataset']} | - | - | - | "
-            + " | ".join(stat_cells(table.average(), decimals))
-            + " |"
-        )
-        if table.published is not None:
-            lines += _published_rows(entry["label"], entry["dataset"], table)
-    return "\n".join(lines)
+        if (group.label, group.dataset) not in seen:
+            seen.add((group.label, group.dataset))
+            g = results.g_of(group)
+            judged[g] = results.judge(g, protocol, targets.get(group.dataset))
+    return judged
 
 
-def _published_rows(label: str, dataset: str, table: SeedTable) -> list[str]:
-    rows = []
-    same, printed = table.published_same_set(), table.published_as_printed()
-    name = table.published_label or "published"
-    slips = known_slips(table.published_label, table.evaluated)
-    flag = f" (includes slips of the paper: {', '.join(slips)})" if slips else ""
-    for text, values in (
-        (f"published ({name}), same {len(table.evaluated)} actions{flag}", same),
-        (f"published ({name}), as printed ({printed_scope(table.published)})", printed),
-    ):
-        if values:
-            rows.append(
-                f"| {label}: {text} | {dataset} | paper | - | paper | "
-                + " | ".join(fmt(values.get(ms), 2) for ms in HORIZONS)
-                + " |"
+def _verdict(results: Results, g: int, judgement, mark) -> str:
+    if judgement is None:
+        return "shorter budget"
+    if judgement.status == "not judged":
+        return f"not judged ({judgement.why})"
+    if (ref := judgement.reference) is None:
+        return judgement.status
+    text = f"**{judgement.status}**, judged against {ref.name}"
+    if len(results.references(g)) > 1:
+        about = f" ({ref.about})" if ref.about else ""
+        text += mark(f"{results.label(g)}: judged against {ref.name}{about}: {judgement.why}.")
+    return text
+
+
+def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
+    """(table, footnotes, why-rows-miss lines) of the headline."""
+    rows, notes = [], []
+
+    def mark(text: str) -> str:
+        notes.append(text) if text not in notes else None
+        return str(notes.index(text) + 1).translate(SUPERSCRIPTS)
+
+    def add(experiment="", data="", iterations="", row="", n="", cells=(), verdict=""):
+        rows.append([experiment, data, iterations, row, n, *cells, verdict])
+
+    groups = headline_groups(results)
+    judged = verdicts(results, groups, protocol, targets)
+    for k, group in enumerate(groups):
+        g, label = results.g_of(group), group.label
+        if group.settings:
+            settings = ", ".join(f"{a}={v}" for a, v in group.settings.items())
+            label += mark(f"{label}: {settings}.")
+        actions, untrained, n = results.judged_actions(g), results.untrained_of(g), len(group.runs)
+        if untrained:
+            label += mark(
+                f"{group.label}: {', '.join(untrained)} has no training files in this copy: left "
+                f"out of the average the verdict judges ({len(actions)} actions, the published one "
+                f"likewise), shown in the per-action tables and the rows 'all "
+                f"{len(results.evaluated[g])} actions'."
             )
-    return rows
+        verdict, budget = _verdict(results, g, judged.get(g), mark), f"{group.iterations:,}"
+        for s in SELECTIONS:
+            best = s == "best"
+            add(label if best else "", group.dataset if best else "", budget, f"ours, {s}",
+                str(n), _cells(results.average(g, protocol, s, judged=True)), verdict * best)  # fmt: skip
+        for s in SELECTIONS if untrained else ():
+            add(iterations=budget, row=f"ours, {s}, all {len(results.evaluated[g])} actions",
+                n=str(n), cells=_cells(results.average(g, protocol, s)))  # fmt: skip
+        ours = {s: results.means(g, protocol, s, judged=True) for s in SELECTIONS}
+        for ref in results.references(g):
+            if not (same := results.same_set(g, ref)):
+                printed = ref.published.get(AVERAGE, {})
+                add(row=f"{ref.name}, as printed (all of its actions)", verdict="not judged",
+                    cells=[fmt(printed.get(ms)) for ms in HORIZONS])  # fmt: skip
+                continue
+            slips = known_slips(ref.key, actions)
+            name = f"{ref.name}, {len(actions)} actions" + (
+                f" incl. slips ({', '.join(slips)})" if slips else "")  # fmt: skip
+            gaps = {ms: ", ".join(signed(printed_gap(ours[s][ms], v)) for s in SELECTIONS)
+                    for ms, v in same.items()}  # fmt: skip
+            cells = [f"{same[ms]:.2f} ({gaps[ms]})" if ms in same else "-" for ms in HORIZONS]
+            target, text = targets.get(group.dataset), "-"
+            if target is not None:
+                missed = results.missed(g, protocol, ref, target)
+                text = f"within {target:.2f}" if not any(missed.values()) else (
+                    f"beyond {target:.2f} at {_ms(missed['best'])}"
+                    if missed["best"] == missed["last"] else f"beyond {target:.2f}: "
+                    + "; ".join(f"{s} {_ms(missed[s])}" for s in SELECTIONS if missed[s]))  # fmt: skip
+            add(row=name, cells=cells, verdict=text)
+        zero = results.find("zero_velocity", group.dataset)
+        if zero is not None and (k + 1 == len(groups) or groups[k + 1].dataset != group.dataset):
+            add("zero-velocity", group.dataset, "-", f"baseline, {len(results.judged_actions(zero))}"
+                " actions", "-", _cells(results.average(zero, protocol, "-", judged=True)),
+                "the yardstick")  # fmt: skip
+    columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
+    footnotes = [f"{str(k + 1).translate(SUPERSCRIPTS)} {t}" for k, t in enumerate(notes)]
+    if link and (ablations := [g for g in results.groups if g.ablation]) and len(groups) < len(
+            results.groups):  # fmt: skip
+        footnotes.append(
+            f"Li et al.'s ablations ({len(ablations)} trained "
+            f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) are compared "
+            f"with li2018_h36m, claim by claim, under [Ablations]({link})."
+        )
+    why = [results.diagnosis(g, protocol, j, REFERENCE_CODE_CHECKED.get(results.entries[g].run_name))
+           for g, j in judged.items() if j.status == "misses"]  # fmt: skip
+    return markdown(pd.DataFrame(rows, columns=columns)), footnotes, why
+
+
+def headline(results, protocol, targets, figures, link, intro) -> list[str]:
+    """The headline's lines: intro, legend, table, footnotes, why rows miss, figures."""
+    goal = ", ".join(f"{t:.2f} rad on {d}" for d, t in targets.items())
+    table, notes, why = headline_table(results, protocol, targets, link)
+    lines = [
+        intro,
+        "",
+        "Ours: mean ± std over n seeds, best checkpoint (selected on the test windows, as the "
+        "papers did) and last. Published: the paper's average over the same actions (ours minus "
+        f"it: best, last). Reproduces: both within {goal} at every published horizon.",
+        "",
+        table,
+        "",
+        *[f"- {note}" for note in notes],
+    ]
+    lines += ["", "**Why rows miss.**", *[f"- {text}" for text in why]] if why else []
+    lines += [""] + [f"![{t}]({f})" for t, f in zip(TITLES, figures, strict=False) if f]
+    return [*lines, ""] if any(figures) else lines
+
+
+def readme_block(results, protocol, commit, targets, figure=None, page="docs/results.md") -> str:
+    """The README's Results block: the page's headline, linking to the page for the rest."""
+    intro = (
+        f"Generated by `python -m src.report` on {dt.date.today()} at commit {commit}: average "
+        f"Euler error (rad), {PROTOCOLS.get(protocol, protocol)}; the rest in [{page}]({page})."
+    )
+    lines = headline(results, protocol, targets, [figure], f"{page}#ablations", intro)
+    return "\n".join(lines).rstrip("\n")
+
+
+def replace_block(path: Path, name: str, text: str | None = None) -> None:
+    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`;
+    text=None only checks that the markers are there."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    content = Path(path).read_text() if Path(path).is_file() else ""
+    if start not in content or end not in content.split(start, 1)[-1]:
+        raise ConfigError(f"readme={path} has no {start} ... {end} markers to write between")
+    if text is not None:
+        head, rest = content.split(start, 1)
+        Path(path).write_text(f"{head}{start}\n{text}\n{end}{rest.split(end, 1)[1]}")
 
 
 def _wall_time(run: dict) -> str:
-    """Training time over all of a run's segments; for a run resumed from a checkpoint that
-    does not hold it (src.train before train_time_s), the last segment's, said as such."""
-    total = run.get("train_time_s")
-    if total is not None:
+    """Training time over all segments; for a run resumed before src.train kept the total, the
+    last segment's, said as such."""
+    if (total := run.get("train_time_s")) is not None:
         return f"{total / 60:.1f} min"
-    wall = run.get("wall_time_s")
-    if wall is None:
+    if (wall := run.get("wall_time_s")) is None:
         return "-"
     return f"{wall / 60:.1f} min" + (" (last segment)" if run["config"].get("ckpt_path") else "")
 
 
-def provenance_table(groups: list[Group], baselines: list[dict]) -> str:
-    lines = [
-        "| experiment | seed | run folder | commit | iterations | best at | wall time | device "
-        "| data archive (sha256) | missing files | notes |",
-        "|---|---:|---|---|---:|---:|---:|---|---|---|---|",
-    ]
-    for group in groups:
+def provenance_table(results: Results) -> str:
+    rows = []
+    for group in results.groups:
         for r in group.runs:
-            missing = r.get("missing_files") or []
-            lines.append(
-                f"| {group.label} | {r['seed']} | `{r['path']}` | {r.get('commit') or '-'} | "
-                f"{_range([r['iterations']])} | {_range([r['iterations_of']['best']])} | "
-                f"{_wall_time(r)} | {r.get('device') or '-'} | "
-                f"{r.get('archive_sha256', '-')} | "
-                f"{f'{len(missing)} (see below)' if missing else 'none'} | "
-                f"{'; '.join(r['notes']) or '-'} |"
-            )
-    for e in baselines:
-        missing = e.get("missing_files") or []
-        missing_txt = f"{len(missing)} (see below)" if missing else "none"
-        lines.append(
-            f"| {e['label']} ({e.get('kind', 'baseline')}) | - | - | {e.get('commit', '-')} | - "
-            "| - | - | - | "
-            f"{e.get('archive_sha256', '-')} | {missing_txt} | - |"
-        )
-    return "\n".join(lines)
+            missing = len(r.get("missing_files") or [])
+            rows.append([group.label, str(r["seed"]), f"`{r['path']}`", r.get("commit") or "-",
+                         f"{group.iterations:,}", _range([r["iterations_of"]["best"]]),
+                         _wall_time(r), r.get("device") or "-", r.get("archive_sha256", "-"),
+                         f"{missing} (see above)" if missing else "none",
+                         "; ".join(r["notes"]) or "-"])  # fmt: skip
+    for e in results.baselines:
+        missing = len(e.get("missing_files") or [])
+        rows.append([f"{e['label']} ({e.get('kind', 'baseline')})", "-", "-", e.get("commit", "-"),
+                     "-", "-", "-", "-", e.get("archive_sha256", "-"),
+                     f"{missing} (see above)" if missing else "none", "-"])  # fmt: skip
+    columns = ["experiment", "seed", "run folder", "commit", "iterations", "best at", "wall time",
+               "device", "data archive (sha256)", "missing files", "notes"]  # fmt: skip
+    return markdown(pd.DataFrame(rows, columns=columns))
 
 
-def how_to_read(groups: list[Group]) -> list[str]:
+def averages_table(results: Results, protocol: str, metric: str, published: bool) -> str:
+    """Every entry's average over its evaluated actions, best and last; with `published`, each
+    reference's same-set average and its own as printed."""
+    decimals, rows = (2 if metric == "euler" else 1), []
+    for g, entry in enumerate(results.entries):
+        trained = isinstance(entry, Group)
+        for s in SELECTIONS if trained else ("-",):
+            budget = "-" if not trained else f"{entry.iterations:,}" if s == "last" else (
+                f"{_range(r['iterations_of']['best'] for r in entry.runs)} of {entry.iterations:,}")  # fmt: skip
+            rows.append([results.label(g), results.dataset(g), SELECTION_LABELS.get(s, "-"),
+                         str(len(entry.runs)) if trained else "-", budget,
+                         *_cells(results.average(g, protocol, s, metric), decimals)])  # fmt: skip
+        evaluated = results.evaluated.get(g, [])
+        for ref in results.references(g) if published and metric == "euler" else ():
+            slips = known_slips(ref.key, evaluated)
+            flag = f" (includes slips of the paper: {', '.join(slips)})" if slips else ""
+            n = len(set(ref.published) - {AVERAGE})
+            for what, values in (
+                (f"same {len(evaluated)} actions{flag}", same_set_average(ref.published, evaluated, HORIZONS)),
+                (f"as printed (all {n or 'of its'} actions)", ref.published.get(AVERAGE, {})),
+            ):  # fmt: skip
+                rows += [[f"{results.label(g)}: published ({ref.key}), {what}", results.dataset(g),
+                          "paper", "-", "paper", *[fmt(values.get(ms)) for ms in HORIZONS]]] * (
+                    bool(values))  # fmt: skip
+    columns = ["experiment", "dataset", "checkpoint", "n", "iterations", *COLS]
+    return markdown(pd.DataFrame(rows, columns=columns))
+
+
+def per_action_csv(results: Results, protocol: str, metric: str) -> str:
+    """Every entry's per-action table of one protocol and metric as CSV: mean and std (n - 1)
+    over the seeds and the published value at each horizon; a note where an action is absent
+    or has no training files in this copy."""
+    f = results.frame[(results.frame.protocol == protocol) & (results.frame.metric == metric)]
+    keys = ["g", "checkpoint", "action"]
+    stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std", "count"])
+    wide = stats[["mean", "std"]].round(4).unstack("horizon")
+    wide.columns = [f"{ms} ms" + (" std" if s == "std" else "") for s, ms in wide.columns]
+    wide = wide[[f"{ms} ms{x}" for ms in HORIZONS for x in ("", " std") if f"{ms} ms{x}" in wide]]
+    out = wide.reset_index()
+    notes = f.groupby(keys, sort=False).absent.first().reindex(pd.MultiIndex.from_frame(out[keys]))
+    out.insert(3, "n", stats["count"].groupby(level=keys, sort=False).max().to_numpy())
+    out.insert(4, "note", [n or ("no training files in this copy" if a in results.untrained_of(g)
+                                 else "") for (g, _, a), n in notes.items()])  # fmt: skip
+    for ms in HORIZONS if metric == "euler" else ():
+        out[f"{ms} ms published"] = [next(iter(refs), None) and refs[0].published.get(a, {}).get(
+            ms) for refs, a in zip(map(results.references, out.g), out.action, strict=True)]  # fmt: skip
+    out.insert(0, "iterations", [getattr(results.entries[g], "iterations", "") for g in out.g])
+    out.insert(0, "data", out.g.map(results.dataset))
+    out.insert(0, "experiment", out.pop("g").map(results.label))
+    return out.to_csv(index=False)
+
+
+def figures(results: Results, protocol: str):
+    """(error against horizon, a panel per dataset: ours best with its ± band and last dotted,
+    each published same-set average dashed; mean validation error at 400 and 1000 ms against
+    iteration, a panel per headline experiment with curves, the published values as lines)."""
+    horizon: dict[str, list[Curve]] = {}
+    validation = []
+    for k, group in enumerate(headline_groups(results)):
+        g, name = results.g_of(group), f"{group.label}, {group.iterations:,}"
+        for s, style in (("best", "-"), ("last", ":")):
+            avg = results.average(g, protocol, s, judged=True)
+            std = {ms: v[1] for ms, v in avg.items() if v[2] > 1} or None
+            curve = Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg.items()}, std, k, style)
+            horizon.setdefault(group.dataset, []).append(curve)
+        refs = results.references(g)
+        for j, ref in enumerate(refs):
+            if same := results.same_set(g, ref):
+                horizon[group.dataset].append(Curve(ref.name, same, None, k, "-." if j else "--"))
+        if len(curve := results.validation_means(g, protocol)) > 1:
+            # The validations average over every evaluated action: the published value too.
+            same = same_set_average(refs[0].published, results.evaluated[g], HORIZONS) if refs else {}
+            lines = []
+            for c, ms in enumerate((400, 1000)):
+                lines.append(Curve(f"{ms} ms", {i: e[ms] for i, e in curve.items()}, color=c))
+                if ms in same:
+                    ends = dict.fromkeys((min(curve), max(curve)), same[ms])
+                    lines.append(Curve(f"{ms} ms, published", ends, color=c, style="--"))
+            validation.append((f"{name} iterations, mean over {len(group.runs)} seeds", lines))
+    where = PROTOCOLS.get(protocol, protocol)
+    first = line_panels([(f"{d}: {where}", c) for d, c in horizon.items()]) if horizon else None
+    return first, line_panels(validation, "iterations") if validation else None
+
+
+def reading(results: Results) -> list[str]:
+    """How to read the numbers: the seeds of each row, the runs counted once, the checkpoints,
+    the published values."""
     seeds = "; ".join(
-        f"{g.label} ({g.dataset}): {len(g.runs)} seed{'s' if len(g.runs) != 1 else ''} "
-        f"({', '.join(str(r['seed']) for r in g.runs)})"
-        for g in groups
+        f"{g.label} ({g.dataset}, {g.iterations:,} iterations): {len(g.runs)} seed"
+        f"{'s' * (len(g.runs) != 1)} ({', '.join(str(r['seed']) for r in g.runs)})"
+        for g in results.groups
     )
-    lines = [
-        f"**Seeds.** {seeds or 'no training runs'}. A trained model's cell is the mean ± the "
-        "sample standard deviation (n - 1) over its seeds; without ±, one seed. The average "
-        "row's ± is that of the per-seed averages.",
-        "",
-    ]
-    left_out = [line for g in groups for line in g.left_out]
-    if left_out:
+    lines = [f"**Seeds.** {seeds or 'no training runs'}. A cell is the mean ± the sample "
+             "standard deviation (n - 1) over the seeds' averages; without ±, one seed.", ""]  # fmt: skip
+    if left_out := [line for g in results.groups for line in g.left_out]:
         lines += ["**Runs counted once.** " + "; ".join(left_out) + ".", ""]
-    lines += [
+    return lines + [
         "**Checkpoints.** *best (test-selected)*: the lowest average Euler error at a validation "
-        "during training, on the test windows, as both reference implementations and the "
-        "papers (protocol section 8): this selection uses test information and is optimistic. "
-        "*last (no test info)*: the final iteration, chosen without looking at the test windows.",
-        "",
+        "during training, on the test windows, as both reference implementations and the papers "
+        "(protocol section 8): this selection uses test information and is optimistic. *last (no "
+        "test info)*: the final iteration, chosen without looking at the test windows. "
         "**Published values.** The paper's average recomputed from its per-action values over "
-        "the actions evaluated here ('same N actions': like for like when this data copy lacks "
-        "some), and as printed, over all of its actions. Li et al.'s Tables 5 and 6 print "
-        "averages only, so they have no same-set value.",
+        "the actions evaluated here ('same N actions': like for like when this copy lacks some), "
+        "and as printed, over all of its actions; Li et al.'s Tables 5 and 6 print averages only.",
         "",
     ]
-    return lines
 
 
-def target_paragraph(
-    groups: list[Group], protocol: str, targets: dict[str, float], notes: dict[str, str]
-) -> list[str]:
-    """The reproduction target, which rows miss it, and the notes saying why."""
-    checked = [g for g in groups if g.dataset in targets]
-    if not checked:
+def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict) -> list[str]:
+    """The reproduction target, the rows that miss it with the notes saying why and their error
+    at each validation; that every row meets it only where some row was judged."""
+    judged = verdicts(results, results.groups, protocol, targets)
+    judged = {g: j for g, j in judged.items() if j.status != "-"}
+    if not judged:
         return []
-    judged = [(g, judge(g, protocol, targets[g.dataset])) for g in checked]  # once per row
-    missed = [g.label for g, j in judged if j.status == "misses"]
     goal = ", ".join(f"{d} {t:.2f}" for d, t in targets.items())
     text = (
         "**Reproduction target.** A trained row reproduces its paper when its average is within "
@@ -196,174 +353,88 @@ def target_paragraph(
         f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints, against the "
         "reference its verdict names. "
     )
-    unjudged = [g.label for g, j in judged if j.status == "not judged"]
-    if unjudged:
-        text += (
-            "Not judged (their paper prints an average only, over all of its actions, so there "
-            f"is no same-set value): {', '.join(unjudged)}. "
-        )
-    if not missed:
+    if unjudged := [results.label(g) for g, j in judged.items() if j.status == "not judged"]:
+        text += ("Not judged (their paper prints an average only, over all of its actions, so "
+                 f"there is no same-set value): {', '.join(unjudged)}. ")  # fmt: skip
+    missed = {g: j for g, j in judged.items() if j.status == "misses"}
+    if not missed and len(unjudged) < len(judged):
         text += "Every trained row with a published same-set average meets it."
-        return [text, ""]
-    text += "Rows that miss it: " + "; ".join(
-        f"{label} ({notes.get(label, 'no explanation given')})" for label in missed
-    )
-    text += "."
-    # Whether a miss is one checkpoint's or the whole run's: its error at every validation.
-    for group, judgement in judged:
-        curve = (
-            validation_text(group, protocol, judgement) if judgement.status == "misses" else None
-        )
-        text += f" {curve}" if curve else ""
+    if missed:
+        text += "Rows that miss it: " + "; ".join(
+            f"{results.label(g)} ({notes.get(results.label(g), 'no explanation given')})"
+            for g in missed) + "."  # fmt: skip
+    for g, judgement in missed.items():
+        if not (means := results.validation_means(g, protocol)):
+            continue
+        same, steps = results.same_set(g, judgement.reference), list(means)
+        when = f"iterations {steps[0]:,} to {steps[-1]:,}" if steps[1:] else f"iteration {steps[0]:,}"
+        if len(gaps := {b - a for a, b in zip(steps, steps[1:], strict=False)}) == 1:
+            when += f", every {gaps.pop():,}"
+        if (n := len(results.entries[g].runs)) > 1:
+            when += f"; mean over {n} seeds"
+        horizons = sorted({ms for hs in judgement.missed.values() for ms in hs})
+        text += f" {results.label(g)} at each validation ({when}): " + ", ".join(
+            " ".join(fmt(means[i].get(ms)) for i in steps) + f" at {ms} ms (published "
+            f"{fmt(same.get(ms))})" for ms in horizons) + "."  # fmt: skip
     return [text, ""]
 
 
-def _group_section(
-    group: Group, protocol: str, target: float | None, notes: dict[str, str]
-) -> list[str]:
-    lines = [f"### {group.label} ({group.dataset})", ""]
-    if group.settings:
-        lines.append(
-            "- Settings: " + ", ".join(f"{k}={v}" for k, v in group.settings.items()) + "."
-        )
-    folders = ", ".join(f"seed {r['seed']}: `{r['path']}`" for r in group.runs)
-    lines += [
-        f"- Runs: {folders}.",
-        "- Best checkpoints at iteration(s) "
-        + ", ".join(_range([r["iterations_of"]["best"]]) for r in group.runs)
-        + f" of {_range([r['iterations'] for r in group.runs])}.",
-    ]
-    lines += [f"- {line}." for line in group.left_out]
-    for selection in SELECTIONS:
-        lines += gap_lines(group, selection, protocol, target)
-    line = training_data_line(group, protocol)
-    lines += ([line] if line else []) + slip_lines(group, protocol)
-    if group.label in notes:
-        lines.append(f"- Note: {notes[group.label]}")
-    lines.append("")
-    lines += _per_action(group, protocol, "euler")
-    return lines
+def data_lines(results: Results) -> list[str]:
+    """What this data copy lacks (the files, the training files of each dataset's evaluated
+    actions), and the published values that are slips of the papers."""
+    everyone = [r for g in results.groups for r in g.runs] + results.baselines
+    missing = sorted({m for e in everyone for m in e.get("missing_files") or []})
+    lines = [
+        f"**Data copy.** It lacks {len(missing)} file(s) of the full archives; training used what "
+        "exists (`data.allow_partial=true`), actions without test files are absent: "
+        + ", ".join(f"`{m}`" for m in missing)
+    ] * bool(missing)
+    shown = set()
+    for group in headline_groups(results):
+        g = results.g_of(group)
+        files = training_files(group.runs[0]["config"], results.evaluated[g], missing_of(group))
+        if (short := [f"{a} {p} of {n}" for a, (p, n) in files.items() if p < n]) and (
+                group.dataset not in shown):  # fmt: skip
+            shown.add(group.dataset)
+            lines.append(f"- {group.dataset}: training files of the evaluated actions present (of "
+                         "the full archive's): " + ", ".join(short) + ".")  # fmt: skip
+        for ref in results.references(g):
+            if slips := known_slips(ref.key, results.evaluated[g]):
+                lines.append(
+                    f"- {group.label}: the published values ({ref.key}) of {', '.join(slips)} are "
+                    "slips of the paper (shared docs/published_results.md): "
+                    + "; ".join(slips.values()) + ". Kept as printed, so the published averages "
+                    "that include them are off too."
+                )  # fmt: skip
+    return [*lines, ""] if lines else []
 
 
-def _per_action(group: Group, protocol: str, metric: str) -> list[str]:
-    """The group's per-action tables: best and last, with the first reference; then the best
-    with each further reference."""
-    lines = []
-    for selection in SELECTIONS:
-        lines += [seed_table(group, selection, protocol, metric).to_markdown(), ""]
-    if metric == "euler":
-        for reference in references(group)[1:]:
-            table = seed_table(group, "best", protocol, metric, reference)
-            table.title += f", beside {reference.name}"
-            lines += [table.to_markdown(), ""]
-    return lines
-
-
-def _baseline_tables(baselines: list[dict], protocol: str, metric: str) -> list[str]:
-    lines = []
-    for entry in baselines:
-        table_dict = entry["results"][protocol]["tables"][0 if metric == "euler" else 1]
-        published = stored_published(table_dict, entry["dataset"]) if metric == "euler" else None
-        table = table_from_dict(table_dict, published, table_dict.get("published_label"))
-        lines += [
-            f"### {entry['label']} ({entry['dataset']}), {PROTOCOLS.get(protocol, protocol)}",
-            "",
-            table.to_markdown(),
-            "",
-        ]
-    return lines
-
-
-def build_page(
-    groups: list[Group],
-    baselines: list[dict],
-    protocols: list[str],
-    command: str,
-    budget: str | None,
-    commit: str | None = None,
-    targets: dict[str, float] | None = None,
-    notes: dict[str, str] | None = None,
-    figure: str | None = None,
-) -> str:
-    targets = TARGETS if targets is None else targets
-    notes = notes or {}
+def build_page(results, protocols, command, budget, commit, targets, notes=None,
+               figures=(None, None), tables=None) -> str:  # fmt: skip
+    """The page's markdown; `figures`: the two figures' file names beside it; `tables`: the
+    folder of the per-action CSV files (<metric>_<protocol>.csv), relative to the page."""
     first = protocols[0]
     intro = (
-        f"Generated by `python -m src.report` on {dt.date.today()} at commit "
-        f"{commit or git_commit()} from the checkpoints of the runs under Provenance (the "
-        "command is at the end); do not edit by hand. Average Euler-angle error (radians) over "
-        f"the evaluated actions, {PROTOCOLS.get(first, first)}."
+        f"Generated by `python -m src.report` on {dt.date.today()} at commit {commit} from the "
+        "runs under Provenance (the command is at the end); do not edit by hand. Average "
+        f"Euler-angle error (radians) over the evaluated actions, {PROTOCOLS.get(first, first)}."
     )
-    lines = ["# Results", ""]
-    lines += headline(groups, first, targets, figure, f"#{anchor(ABLATIONS_HEADING)}", intro)
-    if budget:
-        lines += [f"**Budget.** {budget}", ""]
-    lines += how_to_read(groups)
-    lines += target_paragraph(groups, first, targets, notes)
-    lines += claims_section(groups, protocols, ABLATIONS_HEADING)
-    compared = comparison_lines(groups, first)
-    if compared:
-        lines += [
-            f"## Settings compared ({PROTOCOLS.get(first, first)})",
-            "",
-            "Runs of one experiment that differ in one setting: the average Euler error over the "
-            "evaluated actions (mean over seeds), the later row minus the first; negative means "
-            "the later setting has the lower error. With one seed a side, compare a difference "
-            "with the spread between seeds of the rows that have several.",
-            "",
-            *compared,
-            "",
-        ]
-    lines += ["## Provenance", ""]
-    lines += [provenance_table(groups, baselines), ""]
-    lines += [
-        "Run folders are named relative to the folder that holds them all (the project's, for "
-        "runs under its outputs/).",
-        "",
-    ]
-    everyone = [r for g in groups for r in g.runs] + baselines
-    missing = sorted({m for e in everyone for m in e.get("missing_files") or []})
-    if missing:
-        lines += [
-            f"The data copy lacks {len(missing)} file(s) of the full archives; training used what "
-            "exists (`data.allow_partial=true`) and actions without test files are shown as "
-            "absent: " + ", ".join(f"`{m}`" for m in missing),
-            "",
-        ]
-    # Per-action tables of the ablations on the papers' protocol only: elsewhere their averages
-    # (in the tables of averages) are what the claims use.
-    main = headline_groups(groups)
-    for k, protocol in enumerate(protocols):
-        where = PROTOCOLS.get(protocol, protocol)
-        lines += [
-            f"## {'Per-action tables' if k == 0 else 'Other protocol'}: {where}",
-            "",
-            "Averages over the evaluated actions (Euler-angle error, radians), with the baselines:",
-            "",
-            summary_table(groups, baselines, "euler", protocol),
-            "",
-        ]
-        for group in groups if k == 0 else main:
-            if k == 0:
-                lines += _group_section(group, protocol, targets.get(group.dataset), notes)
-            else:
-                lines += [f"### {group.label} ({group.dataset}), {where}", ""]
-                lines += _per_action(group, protocol, "euler")
-        lines += _baseline_tables(baselines, protocol, "euler")
-    lines += ["## MPJPE", "", "Mean per-joint position error: mm on H3.6M, skeleton units on CMU."]
-    lines.append("")
-    for protocol in protocols:
-        lines += [
-            f"Averages, {PROTOCOLS.get(protocol, protocol)}:",
-            "",
-            summary_table(groups, baselines, "mpjpe", protocol),
-            "",
-        ]
-    for protocol in protocols:
-        where = PROTOCOLS.get(protocol, protocol)
-        for group in main:
-            lines += [f"### {group.label} ({group.dataset}), MPJPE, {where}", ""]
-            lines += _per_action(group, protocol, "mpjpe")
-        lines += _baseline_tables(baselines, protocol, "mpjpe")
-    lines += ["## Command", "", f"`{command}`", ""]
-    return "\n".join(lines)
+    lines = ["# Results", "", *headline(results, first, targets, list(figures), "#ablations", intro)]
+    lines += [f"**Budget.** {budget}", ""] if budget else []
+    lines += reading(results) + target_paragraph(results, first, targets, notes or {})
+    lines += data_lines(results) + claims_section(results, protocols, "Ablations")
+    lines += ["## Provenance", "", provenance_table(results), "", "Run folders are named "
+              "relative to the folder that holds them all (the project's, for runs under its "
+              "outputs/).", ""]  # fmt: skip
+    for metric, what in (("euler", "Euler-angle error (radians)"),
+                         ("mpjpe", "MPJPE (mm on H3.6M, skeleton units on CMU)")):  # fmt: skip
+        for k, protocol in enumerate(protocols):
+            lines += [f"## Averages: {what}, {PROTOCOLS.get(protocol, protocol)}", "",
+                      averages_table(results, protocol, metric, k == 0), ""]  # fmt: skip
+    if tables:
+        links = ", ".join(f"[{m} {p}]({tables}/{m}_{p}.csv)" for m in ("euler", "mpjpe")
+                          for p in protocols)  # fmt: skip
+        lines += ["## Per-action tables", "", "Each experiment's and baseline's per-action table "
+                  "(mean and std over the seeds, the published value, notes on absent and "
+                  f"untrained actions), as CSV: {links}.", ""]  # fmt: skip
+    return "\n".join([*lines, "## Command", "", f"`{command}`", ""])

@@ -1,15 +1,9 @@
-"""Pictures of motion: 3D stick figures, frame strips, animations, error-versus-horizon curves,
-and the rows of one evaluation window (`window_rows`) that src.visualize and the TensorBoard
-frame-strip callback draw.
+"""Pictures of motion (3D stick figures, frame strips, animations), the rows of one evaluation
+window that src.visualize and the TensorBoard frame-strip callback draw, and error curves.
 
-Poses are joint positions (J, 3) from `src.metrics.kinematics.forward_kinematics` after
-`yz_swap`, so the third coordinate points up (matplotlib's 3D z axis) and the figure stands.
-A motion is (T, J, 3): the observed frames first, then the future ones. Observed frames are
-drawn in grey for every row, future frames in the row's colour (ground truth green, prediction
-red, zero-velocity blue), so one sees where the model takes over.
-
-Figures are built with `matplotlib.figure.Figure` (no pyplot), which renders with Agg and needs
-no display; in a notebook they show with `display(fig)`.
+Poses are joint positions (J, 3) after `yz_swap` (z up); a motion is (T, J, 3), observed frames
+first, drawn grey, then the future in the row's colour. Figures are `matplotlib.figure.Figure`
+(no pyplot): they render with Agg, without a display; a notebook shows them with display(fig).
 """
 
 from __future__ import annotations
@@ -34,8 +28,6 @@ PALETTE = {
     "green": ("#1a7f37", "#7fd18b"),
     "red": ("#c62828", "#f28b82"),
     "blue": ("#1f5fb4", "#8ab4f8"),
-    "orange": ("#d9730d", "#f6b26b"),
-    "purple": ("#6a3d9a", "#cab2d6"),
 }
 
 
@@ -154,9 +146,7 @@ def _limits(motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 def _setup_axes(ax, box: tuple[np.ndarray, np.ndarray], elev: float, azim: float) -> None:
     lo, hi = box
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
     # Box sides proportional to the data ranges: equal scale on all axes, no empty cube.
     ax.set_box_aspect(tuple(hi - lo), zoom=1.35)
     ax.set_proj_type("ortho")
@@ -181,12 +171,9 @@ def draw_skeleton(
     sides: np.ndarray | None = None,
     linewidth: float = 2.0,
 ) -> list:
-    """Draw one pose (J, 3) on a 3D axes, a line from each bone's parent joint to its child.
-
-    `colors` is a (right side and spine, left side) pair or one colour; `sides` (one 0/1 per
-    bone, see `bone_sides`) says which. Returns the two Line3D objects (right, left); each holds
-    its bones' segments separated by NaN, see `_segments`, and an animation moves them with
-    `set_data_3d`."""
+    """Draw one pose (J, 3) on a 3D axes, a line per bone, in `colors` (a (right and spine,
+    left) pair or one colour; `sides`, one 0/1 per bone, says which). Returns the two Line3D
+    objects (right, left), which an animation moves with `set_data_3d`."""
     pose = np.asarray(pose)
     if pose.ndim != 2 or pose.shape[1] != 3:
         raise ValueError(f"pose must be (J, 3) joint positions, got shape {pose.shape}")
@@ -206,8 +193,8 @@ def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3
     predicted frame (when step divides the future length - 1) and the last one are shown."""
     if not 0 < n_observed < n_total or step < 1 or n_before < 0:
         raise ValueError(
-            f"need 0 < n_observed ({n_observed}) < n_total ({n_total}), step >= 1 ({step}) "
-            f"and n_before >= 0 ({n_before})"
+            f"need 0 < n_observed < n_total, step >= 1, n_before >= 0: got "
+            f"{n_observed}, {n_total}, {step}, {n_before}"
         )
     before = [n_observed - 1 - step * k for k in range(n_before)]
     after = list(range(n_total - 1, n_observed - 1, -step))
@@ -262,8 +249,16 @@ def frame_strip(
                 ms = (t - (n_observed - 1)) * frame_ms
                 ax.set_title(f"{ms:+.0f} ms" if ms else "0 ms", fontsize=8, pad=0)
         y = 0.86 - (r + 0.5) * 0.86 / len(rows)
-        fig.text(0.01, y, row.label, rotation=90, va="center", ha="left", fontsize=9,
-                 color=PALETTE[row.color][0])  # fmt: skip
+        fig.text(
+            0.01,
+            y,
+            row.label,
+            rotation=90,
+            va="center",
+            ha="left",
+            fontsize=9,
+            color=PALETTE[row.color][0],
+        )
     fig.suptitle(
         (title + "\n" if title else "") + "grey: observed, colour: future (time from the "
         "last observed frame)",
@@ -320,78 +315,63 @@ def animate(
     return FuncAnimation(fig, update, frames=range(T), interval=frame_ms, blit=False)
 
 
+class Curve(NamedTuple):
+    """One line of a panel: {x: y}, an optional ± band {x: std}, a colour index (lines of one
+    experiment share it; None: the next colour) and a matplotlib line style."""
+
+    label: str
+    values: dict
+    std: dict | None = None
+    color: int | None = None
+    style: str = "-"
+
+
+def line_panels(
+    panels: Sequence[tuple[str | None, Sequence[Curve]]],
+    xlabel: str = "prediction horizon (ms)",
+    ylabel: str = "Euler-angle error (rad)",
+) -> Figure:
+    """Error curves, one panel per (title, curves) side by side, as Li et al. (2018) Figure 4;
+    a curve with `std` gets a shaded ± band. The x values of the curves are the ticks."""
+    if not panels or not all(curves for _, curves in panels):
+        raise ValueError("line_panels: a panel without curves")
+    fig = Figure(figsize=(5.0 * len(panels) + 1.0, 4.0), dpi=100)
+    for k, (title, curves) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1)
+        ticks: set[int] = set()
+        for n, curve in enumerate(curves):
+            if not curve.values:
+                raise ValueError(f"curve {curve.label!r} has no values")
+            xs = sorted(int(x) for x in curve.values)
+            ys = [curve.values[x] if x in curve.values else curve.values[str(x)] for x in xs]
+            ticks.update(xs)
+            color = f"C{(n if curve.color is None else curve.color) % 10}"
+            ax.plot(xs, ys, curve.style, marker="o", ms=3, color=color, label=curve.label)
+            if curve.std:
+                std = [curve.std.get(x, 0.0) for x in xs]
+                low, high = [y - s for y, s in zip(ys, std)], [y + s for y, s in zip(ys, std)]
+                ax.fill_between(xs, low, high, color=color, alpha=0.15, lw=0)
+        if len(ticks) <= 12:
+            ax.set_xticks(sorted(ticks))
+        ax.set(xlabel=xlabel, ylabel=ylabel)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        if title:  # a long protocol name would run past a 5-inch panel and be cut off
+            ax.set_title(textwrap.fill(title, 48), fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 def error_vs_horizon(
-    results: Sequence[tuple[str, dict[int, float]]],
+    results: Sequence[tuple[str, dict]],
     title: str | None = None,
     ylabel: str = "Euler-angle error (rad)",
     dashed: Sequence[str] = (),
 ) -> Figure:
-    """Error against prediction horizon, one line per (label, {ms: value}) in `results`, as in
-    Li et al. (2018) Figure 4. Labels listed in `dashed` (e.g. published curves) are dashed."""
+    """One panel of error against horizon, a line per (label, {ms: value}); the labels in
+    `dashed` (published curves) dashed."""
     if not results:
         raise ValueError("error_vs_horizon: no curves given")
-    fig = Figure(figsize=(6.0, 4.0), dpi=100)
-    ax = fig.add_subplot(1, 1, 1)
-    ticks: set[int] = set()
-    for label, curve in results:
-        if not curve:
-            raise ValueError(f"curve {label!r} has no values")
-        ms = sorted(int(k) for k in curve)
-        ticks.update(ms)
-        values = [curve[k] if k in curve else curve[str(k)] for k in ms]
-        ax.plot(ms, values, marker="o", ms=4, label=label, ls="--" if label in dashed else "-")
-    ax.set_xticks(sorted(ticks))
-    ax.set_xlabel("prediction horizon (ms)")
-    ax.set_ylabel(ylabel)
-    ax.set_ylim(bottom=0)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    if title:
-        # A long protocol name would run past a 5-inch panel and be cut off.
-        ax.set_title(textwrap.fill(title, 48), fontsize=10)
-    fig.tight_layout()
-    return fig
-
-
-class Curve(NamedTuple):
-    """One line of a horizon panel: {ms: value}, an optional ± band {ms: std}, a colour index
-    (lines of one experiment share it) and a matplotlib line style."""
-
-    label: str
-    values: dict[int, float]
-    std: dict[int, float] | None = None
-    color: int = 0
-    style: str = "-"
-
-
-def horizon_panels(
-    panels: Sequence[tuple[str, Sequence[Curve]]], ylabel: str = "Euler-angle error (rad)"
-) -> Figure:
-    """Error against prediction horizon, one panel per (title, curves) side by side, as Li et
-    al. (2018) Figure 4; a curve with `std` gets a shaded ± band."""
-    if not panels:
-        raise ValueError("horizon_panels: no panels given")
-    fig = Figure(figsize=(5.0 * len(panels), 3.8), dpi=100)
-    for k, (title, curves) in enumerate(panels):
-        ax = fig.add_subplot(1, len(panels), k + 1)
-        ticks: set[int] = set()
-        for curve in curves:
-            ms = sorted(curve.values)
-            ticks.update(ms)
-            color = f"C{curve.color % 10}"
-            values = [curve.values[m] for m in ms]
-            ax.plot(ms, values, curve.style, marker="o", ms=3, color=color, label=curve.label)
-            if curve.std:
-                low = [curve.values[m] - curve.std.get(m, 0.0) for m in ms]
-                high = [curve.values[m] + curve.std.get(m, 0.0) for m in ms]
-                ax.fill_between(ms, low, high, color=color, alpha=0.15, lw=0)
-        ax.set_xticks(sorted(ticks))
-        ax.set_xlabel("prediction horizon (ms)")
-        ax.set_ylabel(ylabel)
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        # A long protocol name would run past a 5-inch panel and be cut off.
-        ax.set_title(textwrap.fill(title, 48), fontsize=10)
-    fig.tight_layout()
-    return fig
+    curves = [Curve(label, v, style="--" if label in dashed else "-") for label, v in results]
+    return line_panels([(title, curves)], ylabel=ylabel)
