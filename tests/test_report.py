@@ -462,7 +462,7 @@ def test_target_verdict_at_the_printed_precision(delta, within):
     assert gaps[0].endswith(f"({delta:+.2f}, {delta:+.2f})")
     # Every published horizon misses (1000 ms included; 560 ms has no published value).
     assert verdict == ("within 0.03" if within else "beyond 0.03 at 80, 160, 320, 400, 1000 ms")
-    assert results.judge(0, "srnn", 0.03).status == ("reproduces" if within else "misses")
+    assert results.judge(results.groups[0], "srnn", 0.03).status == ("reproduces" if within else "misses")
 
 
 @pytest.mark.parametrize("delta", [0.0333, 0.0368])
@@ -474,7 +474,7 @@ def test_the_gap_is_that_of_the_printed_averages_the_verdict_judges(delta):
     head, _, _ = headline_table(results, "srnn", {"h36m": 0.03}, None)
     ours = row_of(head, "li2018_h36m")[5:11]
     published = row_of(head, "", "", "", "Li et al. conv_s2s, 11 actions")[5:11]
-    missed = results.judge(0, "srnn", 0.03).missed["best"]
+    missed = results.judge(results.groups[0], "srnn", 0.03).missed["best"]
     for ms, mine, theirs in zip(MS, ours, published, strict=True):
         if theirs == "-":
             continue

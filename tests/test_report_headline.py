@@ -102,7 +102,7 @@ def head_of(runs, targets=TARGETS):
 
 def test_the_gru_has_both_published_sources_each_with_its_same_set_gap():
     results, head, _, _ = head_of([gru_run(1, 0.0)])
-    refs = results.references(0)
+    refs = results.references(results.groups[0])
     assert [r.key for r in refs] == ["martinez2017 residual_sup_ma", "li2018 rrnn"]
     rrnn_same = same_set_average(refs[1].published, EVALUATED, MS)
     martinez_same = same_set_average(refs[0].published, EVALUATED, MS)
@@ -133,7 +133,7 @@ def test_the_verdict_names_the_reference_it_was_judged_against_and_why():
     results, head, notes, _ = head_of(
         [gru_run(s, d) for s, d in ((1, 0.0), (2, 0.004), (3, -0.003))]
     )
-    verdict = results.judge(0, "srnn", 0.03)
+    verdict = results.judge(results.groups[0], "srnn", 0.03)
     assert (verdict.status, verdict.reference.key) == ("reproduces", "li2018 rrnn")
     assert "martinez2017 residual_sup_ma" not in verdict.why
     assert "Martinez et al. residual_sup_ma's same-set average includes slips" in verdict.why
@@ -146,7 +146,8 @@ def test_the_verdict_names_the_reference_it_was_judged_against_and_why():
     (martinez,) = [r for r in cells(head) if r[3].startswith("Martinez et al.")]
     assert martinez[-1] == "beyond 0.03 at 80, 160, 320, 400 ms"
     # A model with one reference is judged against it, with no reason needed.
-    assert Results(group_runs([seeded(0.0, 1)])).judge(0, "srnn", 0.03).why == (
+    single = Results(group_runs([seeded(0.0, 1)]))
+    assert single.judge(single.groups[0], "srnn", 0.03).why == (
         "the only published source"
     )
 
@@ -160,7 +161,8 @@ def test_without_a_slip_the_models_own_paper_is_the_judge():
             for action in ("smoking", "phoning"):
                 table["values"].pop(action)
                 table["absent"][action] = "not in this copy"
-    verdict = Results(group_runs([run])).judge(0, "srnn", 0.03)
+    results = Results(group_runs([run]))
+    verdict = results.judge(results.groups[0], "srnn", 0.03)
     assert verdict.reference.key == "martinez2017 residual_sup_ma"
     assert verdict.why == "the model's own paper" and verdict.status == "misses"
 

@@ -24,7 +24,8 @@ def page(runs, notes=None) -> str:
 
 
 def validation_means(runs) -> dict:
-    return Results(group_runs(runs)).validation_means(0, "srnn")
+    results = Results(group_runs(runs))
+    return results.validation_means(results.groups[0], "srnn")
 
 
 def test_the_curve_is_the_average_per_horizon_at_each_validation(tmp_path):

@@ -14,6 +14,7 @@ import torch
 from src.reporting import published as published_module
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs
+from src.reporting.page import per_action_csv
 from src.reporting.published import (
     ReportingError,
     find_published,
@@ -358,15 +359,20 @@ def seed_runs(offsets) -> list[dict]:
 
 def test_each_cell_is_mean_and_sample_std_over_the_seeds():
     results = Results(group_runs(seed_runs((0.0, 0.02, 0.04))))
-    walking = results.per_action(0).loc[("srnn", "best", "walking")]
-    assert walking.loc[80, "mean"] == pytest.approx(0.32)
-    assert walking.loc[80, "std"] == pytest.approx(0.02)  # n - 1 denominator
-    eating = results.per_action(0).loc[("srnn", "best", "eating")]
-    assert eating.loc[80, "std"] == pytest.approx(0.04) and eating.loc[160, "std"] == 0
+    f = results.frame[(results.frame.checkpoint == "best") & results.frame.value.notna()]
+    cells = f.groupby(["action", "horizon"]).value.agg(["mean", "std"])
+    assert cells.loc[("walking", 80), "mean"] == pytest.approx(0.32)
+    assert cells.loc[("walking", 80), "std"] == pytest.approx(0.02)  # n - 1 denominator
+    assert cells.loc[("eating", 80), "std"] == pytest.approx(0.04)
+    assert cells.loc[("eating", 160), "std"] == 0
+    rows = list(csv.DictReader(io.StringIO(per_action_csv(results, "srnn", "euler"))))
+    walking = next(r for r in rows if (r["checkpoint"], r["action"]) == ("best", "walking"))
+    assert walking["n"] == "3" and float(walking["80 ms"]) == pytest.approx(0.32)
+    assert float(walking["80 ms std"]) == pytest.approx(0.02)
     # The average row: mean and std of the per-seed averages (0.25, 0.28, 0.31 at 80 ms).
-    mean, std, n = results.average(0, "srnn", "best")[80]
+    mean, std, n = results.average(results.groups[0], "srnn", "best")[80]
     assert (mean, std, n) == (pytest.approx(0.28), pytest.approx(0.03), 3)
-    assert results.spread(0, "srnn", "best")[80] == pytest.approx(0.06)
+    assert results.spread(results.groups[0], "srnn", "best")[80] == pytest.approx(0.06)
     # Absent actions are in the long table, without a value and with their reason.
     frame = results.frame
     absent = frame[frame.action == "discussion"]
@@ -375,9 +381,9 @@ def test_each_cell_is_mean_and_sample_std_over_the_seeds():
 
 def test_one_seed_has_no_spread():
     results = Results(group_runs(seed_runs((0.0,))))
-    mean, std, n = results.average(0, "srnn", "best")[80]
+    mean, std, n = results.average(results.groups[0], "srnn", "best")[80]
     assert mean == pytest.approx(0.25) and n == 1 and math.isnan(std)
-    assert results.spread(0, "srnn", "best") is None
+    assert results.spread(results.groups[0], "srnn", "best") is None
 
 
 def test_seeds_evaluated_on_other_actions_are_refused():

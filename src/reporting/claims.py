@@ -221,118 +221,91 @@ def _c20_line(results: Results, full: Group, c20: Group | None, protocols: list[
     return text
 
 
+def _cell(delta: dict, spread: dict | None, ms: int) -> str:
+    if ms not in delta:
+        return "-"
+    within = spread is not None and abs(delta[ms]) <= spread.get(ms, 0)
+    return f"({signed(delta[ms])})" if within else signed(delta[ms])
+
+
+def _pair(results, claim, pair, full, protocols, spread) -> tuple[list[list[str]], str | None]:
+    """The rows of one pair of a claim (the paper's, then ours on each protocol and checkpoint,
+    or "not trained") and the note naming the settings the two differ in."""
+    changed_name, base_name, paper = pair
+    label, groups = f"{_name(changed_name)} − {_name(base_name)}", results.groups
+    changed = _nearest(groups, changed_name, full)
+    base = _nearest(groups, base_name, changed or full)
+    if base_name == C20 and (base is None or not _differences(base, full)):
+        base = full  # li2018_h36m's configuration: its seeds are C = 20's
+    rows = []
+    if paper is not None:
+        rows.append(
+            [
+                f"{label}, paper",
+                "-",
+                "-",
+                *[signed(paper[ms]) if ms in paper else "-" for ms in HORIZONS],
+                "",
+            ]
+        )
+    if changed is None or base is None:
+        missing = [n for n, g in ((changed_name, changed), (base_name, base)) if g is None]
+        rows.append([label, "-", "-", *["-"] * len(HORIZONS), f"not trained: {', '.join(missing)}"])
+        return rows, None
+    first = f"{label} ({_seeds(changed)} and {_seeds(base)})"
+    for p in protocols:
+        for s in SELECTIONS:
+            a, b = results.means(changed, p, s), results.means(base, p, s)
+            delta = {ms: a[ms] - b[ms] for ms in HORIZONS if ms in a and ms in b}
+            cells = [_cell(delta, spread[p, s], ms) for ms in HORIZONS]
+            verdict = _verdict(claim, delta, spread[p, s])
+            rows.append([first, SHORT_PROTOCOLS.get(p, p), s, *cells, verdict])
+            first = ""
+    differ = _differences(changed, base)
+    listing = "; ".join(differ[:4]) + ("; …" if len(differ) > 4 else "")
+    listing = listing or "nothing but run_name"
+    return (
+        rows,
+        f"- {label}: {changed.label} against {base.label}; their configs differ in {listing}.",
+    )
+
+
 def claims_section(results: Results, protocols: list[str], heading: str) -> list[str]:
-    """The section's lines under `## heading`; [] unless li2018_h36m and an ablation were
-    trained. A claim none of whose pairs was trained is left out."""
-    groups = results.groups
-    ablations = [g for g in groups if g.ablation and g.dataset == "h36m"]
-    full = _nearest(groups, FULL, ablations[0] if ablations else None)
+    """The section's lines under `## heading`; [] unless li2018_h36m and an ablation it can be
+    compared with were trained. A claim none of whose pairs was trained is left out."""
+    ablations = [g for g in results.groups if g.ablation and g.dataset == "h36m"]
+    full = _nearest(results.groups, FULL, ablations[0] if ablations else None)
     if full is None or not ablations:
         return []
-    spread = {
-        (p, s): results.spread(results.g_of(full), p, s) for p in protocols for s in SELECTIONS
-    }
-    cols = [f"{ms} ms" for ms in HORIZONS]
+    spread = {(p, s): results.spread(full, p, s) for p in protocols for s in SELECTIONS}
+    columns = ["difference", "protocol", "checkpoint", *[f"{ms} ms" for ms in HORIZONS]]
+    shown = []
+    for claim in claims():
+        pairs = [_pair(results, claim, pair, full, protocols, spread) for pair in claim.pairs]
+        if notes := [note for _, note in pairs if note]:  # a pair was trained
+            rows = [row for pair_rows, _ in pairs for row in pair_rows]
+            table = markdown(pd.DataFrame(rows, columns=[*columns, "against the claim"]))
+            shown += [f"### {claim.title}", "", claim.text, "", table, "", *notes, ""]
+    if not shown:
+        return []
     rows = [
-        {
-            "difference": f"seed spread of {full.label}",
-            "protocol": SHORT_PROTOCOLS.get(p, p),
-            "checkpoint": s,
-            **{
-                c: "-" if not spread[p, s] or ms not in spread[p, s] else f"{spread[p, s][ms]:.2f}"
-                for c, ms in zip(cols, HORIZONS)
-            },
-        }
+        [f"seed spread of {full.label}", SHORT_PROTOCOLS.get(p, p), s]
+        + [
+            f"{spread[p, s][ms]:.2f}" if spread[p, s] and ms in spread[p, s] else "-"
+            for ms in HORIZONS
+        ]
         for p in protocols
         for s in SELECTIONS
     ]
-    lines = [
-        f"## {heading}",
-        "",
+    intro = (
         "Li et al.'s ablation claims (section 4.3, Tables 5 and 6, Figure 4), each beside the "
         "same comparison on our runs. Each difference is the average Euler error (radians, over "
         "the evaluated actions) of the changed experiment minus that of the base, each the mean "
         "over its seeds; positive: the change raised the error. The seed spread is that of "
         f"{full.label} ({_seeds(full)}): its largest minus its smallest seed average. A "
         "difference in parentheses is not larger than the spread, so these runs cannot tell its "
-        "sign.",
-        "",
-        markdown(pd.DataFrame(rows)),
-        "",
-        _c20_line(results, full, _nearest(groups, C20, full), protocols),
-        "",
-    ]
-    shown: list[str] = []
-    for claim in claims():
-        rows, notes = [], []
-        for changed_name, base_name, paper in claim.pairs:
-            label = f"{_name(changed_name)} − {_name(base_name)}"
-            changed = _nearest(groups, changed_name, full)
-            c20 = _nearest(groups, C20, full) if base_name == C20 else None
-            base = (
-                full
-                if base_name == C20 and (c20 is None or not _differences(c20, full))
-                else _nearest(groups, base_name, changed or full)
-            )
-            if paper is not None:
-                rows.append(
-                    {
-                        "difference": f"{label}, paper",
-                        "protocol": "-",
-                        "checkpoint": "-",
-                        **{
-                            c: signed(paper[ms]) if ms in paper else "-"
-                            for c, ms in zip(cols, HORIZONS)
-                        },
-                        "against the claim": "",
-                    }
-                )
-            if changed is None or base is None:
-                missing = [n for n, g in ((changed_name, changed), (base_name, base)) if g is None]
-                rows.append(
-                    {
-                        "difference": label,
-                        "protocol": "-",
-                        "checkpoint": "-",
-                        **dict.fromkeys(cols, "-"),
-                        "against the claim": f"not trained: {', '.join(missing)}",
-                    }
-                )
-                continue
-            first = f"{label} ({_seeds(changed)} and {_seeds(base)})"
-            for p in protocols:
-                for s in SELECTIONS:
-                    a = results.means(results.g_of(changed), p, s)
-                    b = results.means(results.g_of(base), p, s)
-                    delta = {ms: a[ms] - b[ms] for ms in HORIZONS if ms in a and ms in b}
-                    cells = {
-                        c: "-"
-                        if ms not in delta
-                        else (
-                            f"({signed(delta[ms])})"
-                            if spread[p, s] is not None
-                            and abs(delta[ms]) <= spread[p, s].get(ms, 0)
-                            else signed(delta[ms])
-                        )
-                        for c, ms in zip(cols, HORIZONS)
-                    }
-                    rows.append(
-                        {
-                            "difference": first,
-                            "protocol": SHORT_PROTOCOLS.get(p, p),
-                            "checkpoint": s,
-                            **cells,
-                            "against the claim": _verdict(claim, delta, spread[p, s]),
-                        }
-                    )
-                    first = ""
-            differ = _differences(changed, base)
-            listing = "; ".join(differ[:4]) + ("; …" if len(differ) > 4 else "")
-            notes.append(
-                f"- {label}: {changed.label} against {base.label}; their configs differ "
-                f"in {listing or 'nothing but run_name'}."
-            )
-        if notes:  # at least one pair trained
-            shown += [f"### {claim.title}", "", claim.text, "", markdown(pd.DataFrame(rows)), ""]
-            shown += [*notes, ""]
-    return lines + shown if shown else []
+        "sign."
+    )
+    c20 = _c20_line(results, full, _nearest(results.groups, C20, full), protocols)
+    spread_table = markdown(pd.DataFrame(rows, columns=columns))
+    return [f"## {heading}", "", intro, "", spread_table, "", c20, "", *shown]

@@ -16,49 +16,26 @@ from src.lit.resume import COMPUTES
 # Config keys that do not make two runs different experiments: the seed, where files live,
 # the device, how often files are written or progress printed, torch.compile (its dropout
 # draws other masks than eager, like another seed), and where a resumed run came from.
-IGNORED_KEYS = (
-    "seed",
-    "data.seed",
-    "ckpt_path",
-    "resume",
-    "checkpoint_every",
-    "media_every",
-    "progress_every_s",
-    "task_name",
+IGNORED_KEYS = set(
+    "seed data.seed ckpt_path resume checkpoint_every media_every progress_every_s "
+    "task_name".split()
 )
-IGNORED_PREFIXES = (
-    "paths.",
-    "trainer.",
-    "compile.",
-    "hydra.",
-    "data.data_dir",
-    "data.archive_dir",
-    "data.archive",
-    "data.num_workers",
-    "data.eval_batch_size",
+IGNORED_PREFIXES = tuple(
+    "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive data.num_workers "
+    "data.eval_batch_size".split()
 )
 # The budget: its own column of every table, not part of a row's label.
-BUDGET_KEYS = ("iterations", "val_every")
+BUDGET_KEYS = {"iterations", "val_every"}
 # Settings named in words in a label when on (the paper's behaviour is off); any other setting
 # that tells two groups of one experiment apart is shown as `leaf=value`.
 SETTING_NAMES = {
     "model.net.reference_eta_offset": "reference-code switches",
     "adversarial.reference_fake_slot": "reference-code switches",
 }
-ABLATIONS = tuple(
+ABLATIONS = [
     f"li2018_h36m_{n}"
-    for n in (
-        "no_long_term",
-        "kernel_4x4",
-        "kernel_7x2",
-        "C5",
-        "C5_no_adv",
-        "C10",
-        "C10_no_adv",
-        "C20",
-        "C20_no_adv",
-    )
-)
+    for n in "no_long_term kernel_4x4 kernel_7x2 C5 C5_no_adv C10 C10_no_adv C20 C20_no_adv".split()
+]
 
 
 def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
@@ -85,7 +62,7 @@ def seed_of(run: dict):
     return run.get("seed", run["config"].get("seed"))
 
 
-@dataclass
+@dataclass(eq=False)  # a group is itself: hashed and compared by identity
 class Group:
     """Runs of one experiment on one dataset at one budget that differ only in their seed.
     label: short, for tables; settings: the config values (budget aside) that tell it from the
@@ -99,6 +76,7 @@ class Group:
     settings: dict = field(default_factory=dict)
     left_out: list[str] = field(default_factory=list)
     ident: dict[str, str] = field(default_factory=dict)
+    kind: str = "trained"  # or "baseline", "predictions" (a scored predictions file)
 
     @property
     def full_label(self) -> str:
@@ -198,55 +176,38 @@ def group_runs(runs: list[dict]) -> list[Group]:
     by_key: dict[tuple, list[dict]] = {}
     for run in runs:
         config = run["config"]
-        key = (
-            config.get("run_name"),
-            config["data"]["name"],
-            tuple(sorted(identity(config).items())),
-        )
-        by_key.setdefault(key, []).append(run)
+        ident = tuple(sorted(identity(config).items()))
+        by_key.setdefault((config.get("run_name"), config["data"]["name"], ident), []).append(run)
     groups = []
     for (run_name, dataset, ident), members in by_key.items():
         siblings = [dict(k[2]) for k in by_key if k[:2] == (run_name, dataset)]
-        keys = sorted({k for s in siblings for k in s} - set(BUDGET_KEYS))
-        keys = [k for k in keys if len({s.get(k, "null") for s in siblings}) > 1]
+        keys = sorted({k for s in siblings for k in s} - BUDGET_KEYS)
         mine = dict(ident)
+        settings = {
+            k: json.loads(mine.get(k, "null"))
+            for k in keys
+            if len({s.get(k, "null") for s in siblings}) > 1
+        }
         kept, left_out = _keep_one_per_seed(members)
         kept.sort(key=lambda r: _seed_order(seed_of(r)))
         iterations = json.loads(mine.get("iterations", "null")) or kept[-1].get("iterations") or 0
-        settings = {k: json.loads(mine.get(k, "null")) for k in keys}
-        groups.append(
-            Group(
-                _short_label(str(run_name), settings),
-                str(run_name),
-                str(dataset),
-                int(iterations),
-                kept,
-                settings,
-                left_out,
-                mine,
-            )
-        )
+        label = _short_label(str(run_name), settings)
+        group = Group(label, str(run_name), str(dataset), int(iterations), kept, settings)
+        group.left_out, group.ident = left_out, mine
+        groups.append(group)
     for group in groups:  # short labels that collide fall back to the full ones
-        same = [
-            g
-            for g in groups
-            if (g.label, g.dataset, g.iterations) == (group.label, group.dataset, group.iterations)
-        ]
-        if len(same) > 1:
+        key = (group.label, group.dataset, group.iterations)
+        if sum((g.label, g.dataset, g.iterations) == key for g in groups) > 1:
             group.label = group.full_label
     first = {}
     for k, g in enumerate(groups):
         first.setdefault((g.run_name, g.dataset), k)
     rank = {"h36m": 0, "cmu": 1}
-    return sorted(
-        groups,
-        key=lambda g: (
-            g.ablation,
-            rank.get(g.dataset, 2),
-            first[g.run_name, g.dataset],
-            -g.iterations,
-        ),
-    )
+
+    def order(g: Group) -> tuple:
+        return (g.ablation, rank.get(g.dataset, 2), first[g.run_name, g.dataset], -g.iterations)
+
+    return sorted(groups, key=order)
 
 
 def parse_notes(items: list[str], groups: list[Group]) -> dict[str, str]:

@@ -54,24 +54,27 @@ def _ms(horizons: list[int]) -> str:
     return ", ".join(map(str, horizons)) + " ms"
 
 
+def _untrained(results: Results, group: Group) -> list[str]:
+    judged = results.actions(group)
+    return [a for a in results.actions(group, judged=False) if a not in judged]
+
+
 def headline_groups(results: Results) -> list[Group]:
     """All but Li et al.'s ablations, which have their section (all when nothing else)."""
-    return [g for g in results.groups if not g.ablation] or list(results.groups)
+    return [g for g in results.groups if not g.ablation] or results.groups
 
 
 def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
-    """{g: judgement} of each of `groups` that gets a verdict: an experiment's longest budget
-    (groups come longest first)."""
-    judged, seen = {}, set()
+    """{group: judgement} of each of `groups` that gets a verdict: an experiment's longest
+    budget (an experiment's groups come longest first)."""
+    judged = {}
     for group in groups:
-        if (group.label, group.dataset) not in seen:
-            seen.add((group.label, group.dataset))
-            g = results.g_of(group)
-            judged[g] = results.judge(g, protocol, targets.get(group.dataset))
+        if all((g.label, g.dataset) != (group.label, group.dataset) for g in judged):
+            judged[group] = results.judge(group, protocol, targets.get(group.dataset))
     return judged
 
 
-def _verdict(results: Results, g: int, judgement, mark) -> str:
+def _verdict(results: Results, group: Group, judgement, mark) -> str:
     if judgement is None:
         return "shorter budget"
     if judgement.status == "not judged":
@@ -79,10 +82,38 @@ def _verdict(results: Results, g: int, judgement, mark) -> str:
     if (ref := judgement.reference) is None:
         return judgement.status
     text = f"**{judgement.status}**, judged against {ref.name}"
-    if len(results.references(g)) > 1:
+    if len(results.references(group)) > 1:
         about = f" ({ref.about})" if ref.about else ""
-        text += mark(f"{results.label(g)}: judged against {ref.name}{about}: {judgement.why}.")
+        text += mark(f"{group.label}: judged against {ref.name}{about}: {judgement.why}.")
     return text
+
+
+def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
+    """(label, cells, verdict) of a reference: its same-set average with ours minus it (best,
+    last), and where that is beyond the target."""
+    actions, same = results.actions(group), results.same_set(group, ref)
+    if not same:
+        printed = ref.published.get(AVERAGE, {})
+        cells = [fmt(printed.get(ms)) for ms in HORIZONS]
+        return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
+    name = f"{ref.name}, {len(actions)} actions"
+    if slips := known_slips(ref.key, actions):
+        name += f" incl. slips ({', '.join(slips)})"
+    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
+    cells = ["-"] * len(HORIZONS)
+    for k, ms in enumerate(HORIZONS):
+        if ms in same:
+            gaps = ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)
+            cells[k] = f"{same[ms]:.2f} ({gaps})"
+    if target is None:
+        return name, cells, "-"
+    missed = results.missed(group, protocol, ref, target)
+    if not any(missed.values()):
+        return name, cells, f"within {target:.2f}"
+    if missed["best"] == missed["last"]:
+        return name, cells, f"beyond {target:.2f} at {_ms(missed['best'])}"
+    where = "; ".join(f"{s} {_ms(missed[s])}" for s in SELECTIONS if missed[s])
+    return name, cells, f"beyond {target:.2f}: {where}"
 
 
 def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
@@ -90,7 +121,8 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
     rows, notes = [], []
 
     def mark(text: str) -> str:
-        notes.append(text) if text not in notes else None
+        if text not in notes:
+            notes.append(text)
         return str(notes.index(text) + 1).translate(SUPERSCRIPTS)
 
     def add(experiment="", data="", iterations="", row="", n="", cells=(), verdict=""):
@@ -99,63 +131,53 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
     groups = headline_groups(results)
     judged = verdicts(results, groups, protocol, targets)
     for k, group in enumerate(groups):
-        g, label = results.g_of(group), group.label
+        label, n, budget = group.label, str(len(group.runs)), f"{group.iterations:,}"
         if group.settings:
-            settings = ", ".join(f"{a}={v}" for a, v in group.settings.items())
-            label += mark(f"{label}: {settings}.")
-        actions, untrained, n = results.judged_actions(g), results.untrained_of(g), len(group.runs)
-        if untrained:
+            label += mark(
+                f"{label}: " + ", ".join(f"{a}={v}" for a, v in group.settings.items()) + "."
+            )
+        if untrained := _untrained(results, group):
+            everything = len(results.actions(group, judged=False))
             label += mark(
                 f"{group.label}: {', '.join(untrained)} has no training files in this copy: left "
-                f"out of the average the verdict judges ({len(actions)} actions, the published one "
-                f"likewise), shown in the per-action tables and the rows 'all "
-                f"{len(results.evaluated[g])} actions'."
+                f"out of the average the verdict judges ({everything - len(untrained)} actions, "
+                f"the published one likewise), shown in the per-action tables and the rows "
+                f"'all {everything} actions'."
             )
-        verdict, budget = _verdict(results, g, judged.get(g), mark), f"{group.iterations:,}"
+        verdict = _verdict(results, group, judged.get(group), mark)
         for s in SELECTIONS:
-            best = s == "best"
-            add(label if best else "", group.dataset if best else "", budget, f"ours, {s}",
-                str(n), _cells(results.average(g, protocol, s, judged=True)), verdict * best)  # fmt: skip
+            best, cells = s == "best", _cells(results.average(group, protocol, s, judged=True))
+            first = (label, group.dataset) if best else ("", "")
+            add(*first, budget, f"ours, {s}", n, cells, verdict if best else "")
         for s in SELECTIONS if untrained else ():
-            add(iterations=budget, row=f"ours, {s}, all {len(results.evaluated[g])} actions",
-                n=str(n), cells=_cells(results.average(g, protocol, s)))  # fmt: skip
-        ours = {s: results.means(g, protocol, s, judged=True) for s in SELECTIONS}
-        for ref in results.references(g):
-            if not (same := results.same_set(g, ref)):
-                printed = ref.published.get(AVERAGE, {})
-                add(row=f"{ref.name}, as printed (all of its actions)", verdict="not judged",
-                    cells=[fmt(printed.get(ms)) for ms in HORIZONS])  # fmt: skip
-                continue
-            slips = known_slips(ref.key, actions)
-            name = f"{ref.name}, {len(actions)} actions" + (
-                f" incl. slips ({', '.join(slips)})" if slips else "")  # fmt: skip
-            gaps = {ms: ", ".join(signed(printed_gap(ours[s][ms], v)) for s in SELECTIONS)
-                    for ms, v in same.items()}  # fmt: skip
-            cells = [f"{same[ms]:.2f} ({gaps[ms]})" if ms in same else "-" for ms in HORIZONS]
-            target, text = targets.get(group.dataset), "-"
-            if target is not None:
-                missed = results.missed(g, protocol, ref, target)
-                text = f"within {target:.2f}" if not any(missed.values()) else (
-                    f"beyond {target:.2f} at {_ms(missed['best'])}"
-                    if missed["best"] == missed["last"] else f"beyond {target:.2f}: "
-                    + "; ".join(f"{s} {_ms(missed[s])}" for s in SELECTIONS if missed[s]))  # fmt: skip
+            cells = _cells(results.average(group, protocol, s))
+            add("", "", budget, f"ours, {s}, all {everything} actions", n, cells)
+        for ref in results.references(group):
+            name, cells, text = _reference_row(
+                results, group, ref, protocol, targets.get(group.dataset)
+            )
             add(row=name, cells=cells, verdict=text)
-        zero = results.find("zero_velocity", group.dataset)
-        if zero is not None and (k + 1 == len(groups) or groups[k + 1].dataset != group.dataset):
-            add("zero-velocity", group.dataset, "-", f"baseline, {len(results.judged_actions(zero))}"
-                " actions", "-", _cells(results.average(zero, protocol, "-", judged=True)),
-                "the yardstick")  # fmt: skip
+        zero = [
+            b for b in results.baselines if (b.label, b.dataset) == ("zero_velocity", group.dataset)
+        ]
+        if zero and (k + 1 == len(groups) or groups[k + 1].dataset != group.dataset):
+            cells = _cells(results.average(zero[0], protocol, "-", judged=True))
+            what = f"baseline, {len(results.actions(zero[0]))} actions"
+            add("zero-velocity", group.dataset, "-", what, "-", cells, "the yardstick")
     columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
     footnotes = [f"{str(k + 1).translate(SUPERSCRIPTS)} {t}" for k, t in enumerate(notes)]
-    if link and (ablations := [g for g in results.groups if g.ablation]) and len(groups) < len(
-            results.groups):  # fmt: skip
+    ablations = [g for g in results.groups if g.ablation]
+    if link and ablations and len(groups) < len(results.groups):
         footnotes.append(
             f"Li et al.'s ablations ({len(ablations)} trained "
             f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) are compared "
             f"with li2018_h36m, claim by claim, under [Ablations]({link})."
         )
-    why = [results.diagnosis(g, protocol, j, REFERENCE_CODE_CHECKED.get(results.entries[g].run_name))
-           for g, j in judged.items() if j.status == "misses"]  # fmt: skip
+    why = [
+        results.diagnosis(group, protocol, j, REFERENCE_CODE_CHECKED.get(group.run_name))
+        for group, j in judged.items()
+        if j.status == "misses"
+    ]
     return markdown(pd.DataFrame(rows, columns=columns)), footnotes, why
 
 
@@ -163,17 +185,12 @@ def headline(results, protocol, targets, figures, link, intro) -> list[str]:
     """The headline's lines: intro, legend, table, footnotes, why rows miss, figures."""
     goal = ", ".join(f"{t:.2f} rad on {d}" for d, t in targets.items())
     table, notes, why = headline_table(results, protocol, targets, link)
-    lines = [
-        intro,
-        "",
+    legend = (
         "Ours: mean ± std over n seeds, best checkpoint (selected on the test windows, as the "
         "papers did) and last. Published: the paper's average over the same actions (ours minus "
-        f"it: best, last). Reproduces: both within {goal} at every published horizon.",
-        "",
-        table,
-        "",
-        *[f"- {note}" for note in notes],
-    ]
+        f"it: best, last). Reproduces: both within {goal} at every published horizon."
+    )
+    lines = [intro, "", legend, "", table, "", *[f"- {note}" for note in notes]]
     lines += ["", "**Why rows miss.**", *[f"- {text}" for text in why]] if why else []
     lines += [""] + [f"![{t}]({f})" for t, f in zip(TITLES, figures, strict=False) if f]
     return [*lines, ""] if any(figures) else lines
@@ -213,73 +230,94 @@ def _wall_time(run: dict) -> str:
 
 def provenance_table(results: Results) -> str:
     rows = []
-    for group in results.groups:
+    for group in results.entries:
+        trained = group.kind == "trained"
         for r in group.runs:
             missing = len(r.get("missing_files") or [])
-            rows.append([group.label, str(r["seed"]), f"`{r['path']}`", r.get("commit") or "-",
-                         f"{group.iterations:,}", _range([r["iterations_of"]["best"]]),
-                         _wall_time(r), r.get("device") or "-", r.get("archive_sha256", "-"),
-                         f"{missing} (see above)" if missing else "none",
-                         "; ".join(r["notes"]) or "-"])  # fmt: skip
-    for e in results.baselines:
-        missing = len(e.get("missing_files") or [])
-        rows.append([f"{e['label']} ({e.get('kind', 'baseline')})", "-", "-", e.get("commit", "-"),
-                     "-", "-", "-", "-", e.get("archive_sha256", "-"),
-                     f"{missing} (see above)" if missing else "none", "-"])  # fmt: skip
-    columns = ["experiment", "seed", "run folder", "commit", "iterations", "best at", "wall time",
-               "device", "data archive (sha256)", "missing files", "notes"]  # fmt: skip
+            rows.append(
+                [
+                    group.label if trained else f"{group.label} ({group.kind})",
+                    str(r["seed"]) if trained else "-",
+                    f"`{r['path']}`" if trained else "-",
+                    r.get("commit") or "-",
+                    f"{group.iterations:,}" if trained else "-",
+                    _range([r["iterations_of"]["best"]]) if trained else "-",
+                    _wall_time(r) if trained else "-",
+                    r.get("device") or "-",
+                    r.get("archive_sha256", "-"),
+                    f"{missing} (see above)" if missing else "none",
+                    "; ".join(r.get("notes", [])) or "-",
+                ]
+            )
+    columns = ["experiment", "seed", "run folder", "commit", "iterations", "best at"]
+    columns += ["wall time", "device", "data archive (sha256)", "missing files", "notes"]
     return markdown(pd.DataFrame(rows, columns=columns))
 
 
 def averages_table(results: Results, protocol: str, metric: str, published: bool) -> str:
-    """Every entry's average over its evaluated actions, best and last; with `published`, each
+    """Every group's average over its evaluated actions, best and last; with `published`, each
     reference's same-set average and its own as printed."""
     decimals, rows = (2 if metric == "euler" else 1), []
-    for g, entry in enumerate(results.entries):
-        trained = isinstance(entry, Group)
+    for group in results.entries:
+        trained, last = group.kind == "trained", f"{group.iterations:,}"
+        best = f"{_range(r.get('iterations_of', {}).get('best') for r in group.runs)} of {last}"
         for s in SELECTIONS if trained else ("-",):
-            budget = "-" if not trained else f"{entry.iterations:,}" if s == "last" else (
-                f"{_range(r['iterations_of']['best'] for r in entry.runs)} of {entry.iterations:,}")  # fmt: skip
-            rows.append([results.label(g), results.dataset(g), SELECTION_LABELS.get(s, "-"),
-                         str(len(entry.runs)) if trained else "-", budget,
-                         *_cells(results.average(g, protocol, s, metric), decimals)])  # fmt: skip
-        evaluated = results.evaluated.get(g, [])
-        for ref in results.references(g) if published and metric == "euler" else ():
+            n, budget = str(len(group.runs)), best if s == "best" else last
+            n, budget = (n, budget) if trained else ("-", "-")
+            cells = _cells(results.average(group, protocol, s, metric), decimals)
+            rows.append(
+                [group.label, group.dataset, SELECTION_LABELS.get(s, "-"), n, budget, *cells]
+            )
+        evaluated = results.actions(group, judged=False)
+        for ref in results.references(group) if published and metric == "euler" else ():
             slips = known_slips(ref.key, evaluated)
             flag = f" (includes slips of the paper: {', '.join(slips)})" if slips else ""
             n = len(set(ref.published) - {AVERAGE})
+            same = same_set_average(ref.published, evaluated, HORIZONS)
+            printed = ref.published.get(AVERAGE, {})
             for what, values in (
-                (f"same {len(evaluated)} actions{flag}", same_set_average(ref.published, evaluated, HORIZONS)),
-                (f"as printed (all {n or 'of its'} actions)", ref.published.get(AVERAGE, {})),
-            ):  # fmt: skip
-                rows += [[f"{results.label(g)}: published ({ref.key}), {what}", results.dataset(g),
-                          "paper", "-", "paper", *[fmt(values.get(ms)) for ms in HORIZONS]]] * (
-                    bool(values))  # fmt: skip
+                (f"same {len(evaluated)} actions{flag}", same),
+                (f"as printed (all {n or 'of its'} actions)", printed),
+            ):
+                if values:
+                    label = f"{group.label}: published ({ref.key}), {what}"
+                    cells = [fmt(values.get(ms)) for ms in HORIZONS]
+                    rows.append([label, group.dataset, "paper", "-", "paper", *cells])
     columns = ["experiment", "dataset", "checkpoint", "n", "iterations", *COLS]
     return markdown(pd.DataFrame(rows, columns=columns))
 
 
 def per_action_csv(results: Results, protocol: str, metric: str) -> str:
-    """Every entry's per-action table of one protocol and metric as CSV: mean and std (n - 1)
+    """Every group's per-action table of one protocol and metric as CSV: mean and std (n - 1)
     over the seeds and the published value at each horizon; a note where an action is absent
     or has no training files in this copy."""
     f = results.frame[(results.frame.protocol == protocol) & (results.frame.metric == metric)]
     keys = ["g", "checkpoint", "action"]
-    stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std", "count"])
-    wide = stats[["mean", "std"]].round(4).unstack("horizon")
-    wide.columns = [f"{ms} ms" + (" std" if s == "std" else "") for s, ms in wide.columns]
-    wide = wide[[f"{ms} ms{x}" for ms in HORIZONS for x in ("", " std") if f"{ms} ms{x}" in wide]]
-    out = wide.reset_index()
-    notes = f.groupby(keys, sort=False).absent.first().reindex(pd.MultiIndex.from_frame(out[keys]))
-    out.insert(3, "n", stats["count"].groupby(level=keys, sort=False).max().to_numpy())
-    out.insert(4, "note", [n or ("no training files in this copy" if a in results.untrained_of(g)
-                                 else "") for (g, _, a), n in notes.items()])  # fmt: skip
-    for ms in HORIZONS if metric == "euler" else ():
-        out[f"{ms} ms published"] = [next(iter(refs), None) and refs[0].published.get(a, {}).get(
-            ms) for refs, a in zip(map(results.references, out.g), out.action, strict=True)]  # fmt: skip
-    out.insert(0, "iterations", [getattr(results.entries[g], "iterations", "") for g in out.g])
-    out.insert(0, "data", out.g.map(results.dataset))
-    out.insert(0, "experiment", out.pop("g").map(results.label))
+    stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std"])
+    rows = f.groupby(keys, sort=False)
+    out = rows.seed.nunique().rename("n").to_frame()
+    gone = "no training files in this copy"
+    out["note"] = [
+        a or (gone if not t else "")
+        for a, t in zip(rows.absent.first(), rows.trained.first(), strict=True)
+    ]
+    for ms in HORIZONS:
+        if ms in stats.index.get_level_values("horizon"):
+            cells = stats.xs(ms, level="horizon")
+            out[f"{ms} ms"], out[f"{ms} ms std"] = cells["mean"], cells["std"]
+    out = out.reset_index()
+    if metric == "euler":
+        refs = [results.references(results.entries[g])[:1] for g in out.g]
+        for ms in HORIZONS:
+            pub = [
+                r[0].published.get(a, {}).get(ms) if r else None
+                for r, a in zip(refs, out.action, strict=True)
+            ]
+            out[f"{ms} ms published"] = pub
+    groups = [results.entries[g] for g in out.pop("g")]
+    out.insert(0, "iterations", [g.iterations if g.kind == "trained" else "" for g in groups])
+    out.insert(0, "data", [g.dataset for g in groups])
+    out.insert(0, "experiment", [g.label for g in groups])
     return out.to_csv(index=False)
 
 
@@ -290,19 +328,21 @@ def figures(results: Results, protocol: str):
     horizon: dict[str, list[Curve]] = {}
     validation = []
     for k, group in enumerate(headline_groups(results)):
-        g, name = results.g_of(group), f"{group.label}, {group.iterations:,}"
+        name, panel = f"{group.label}, {group.iterations:,}", horizon.setdefault(group.dataset, [])
         for s, style in (("best", "-"), ("last", ":")):
-            avg = results.average(g, protocol, s, judged=True)
+            avg = results.average(group, protocol, s, judged=True)
             std = {ms: v[1] for ms, v in avg.items() if v[2] > 1} or None
-            curve = Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg.items()}, std, k, style)
-            horizon.setdefault(group.dataset, []).append(curve)
-        refs = results.references(g)
+            panel.append(
+                Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg.items()}, std, k, style)
+            )
+        refs = results.references(group)
         for j, ref in enumerate(refs):
-            if same := results.same_set(g, ref):
-                horizon[group.dataset].append(Curve(ref.name, same, None, k, "-." if j else "--"))
-        if len(curve := results.validation_means(g, protocol)) > 1:
+            if same := results.same_set(group, ref):
+                panel.append(Curve(ref.name, same, None, k, "-." if j else "--"))
+        if len(curve := results.validation_means(group, protocol)) > 1:
             # The validations average over every evaluated action: the published value too.
-            same = same_set_average(refs[0].published, results.evaluated[g], HORIZONS) if refs else {}
+            ref, evaluated = results.reference(group)[0], results.actions(group, judged=False)
+            same = same_set_average(ref.published, evaluated, HORIZONS) if ref else {}
             lines = []
             for c, ms in enumerate((400, 1000)):
                 lines.append(Curve(f"{ms} ms", {i: e[ms] for i, e in curve.items()}, color=c))
@@ -316,15 +356,17 @@ def figures(results: Results, protocol: str):
 
 
 def reading(results: Results) -> list[str]:
-    """How to read the numbers: the seeds of each row, the runs counted once, the checkpoints,
-    the published values."""
+    """How to read the numbers: each row's seeds, runs counted once, checkpoints, published."""
     seeds = "; ".join(
         f"{g.label} ({g.dataset}, {g.iterations:,} iterations): {len(g.runs)} seed"
         f"{'s' * (len(g.runs) != 1)} ({', '.join(str(r['seed']) for r in g.runs)})"
         for g in results.groups
     )
-    lines = [f"**Seeds.** {seeds or 'no training runs'}. A cell is the mean ± the sample "
-             "standard deviation (n - 1) over the seeds' averages; without ±, one seed.", ""]  # fmt: skip
+    lines = [
+        f"**Seeds.** {seeds or 'no training runs'}. A cell is the mean ± the sample standard "
+        "deviation (n - 1) over the seeds' averages; without ±, one seed.",
+        "",
+    ]
     if left_out := [line for g in results.groups for line in g.left_out]:
         lines += ["**Runs counted once.** " + "; ".join(left_out) + ".", ""]
     return lines + [
@@ -339,9 +381,29 @@ def reading(results: Results) -> list[str]:
     ]
 
 
+def _validation_text(results: Results, group: Group, protocol: str, judgement) -> str:
+    """A row that misses at each of its validations, beside the published value: whether the
+    miss is one checkpoint's or the whole run's."""
+    if not (means := results.validation_means(group, protocol)):
+        return ""
+    same, steps = results.same_set(group, judgement.reference), list(means)
+    when = f"iterations {steps[0]:,} to {steps[-1]:,}" if steps[1:] else f"iteration {steps[0]:,}"
+    if len(gaps := {b - a for a, b in zip(steps, steps[1:], strict=False)}) == 1:
+        when += f", every {gaps.pop():,}"
+    if len(group.runs) > 1:
+        when += f"; mean over {len(group.runs)} seeds"
+    horizons = sorted({ms for hs in judgement.missed.values() for ms in hs})
+    at = [
+        " ".join(fmt(means[i].get(ms)) for i in steps) + f" at {ms} ms (published "
+        f"{fmt(same.get(ms))})"
+        for ms in horizons
+    ]
+    return f" {group.label} at each validation ({when}): " + ", ".join(at) + "."
+
+
 def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict) -> list[str]:
-    """The reproduction target, the rows that miss it with the notes saying why and their error
-    at each validation; that every row meets it only where some row was judged."""
+    """The reproduction target and the rows that miss it, with the notes saying why; that every
+    row meets it only where some row was judged."""
     judged = verdicts(results, results.groups, protocol, targets)
     judged = {g: j for g, j in judged.items() if j.status != "-"}
     if not judged:
@@ -353,37 +415,26 @@ def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict
         f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints, against the "
         "reference its verdict names. "
     )
-    if unjudged := [results.label(g) for g, j in judged.items() if j.status == "not judged"]:
-        text += ("Not judged (their paper prints an average only, over all of its actions, so "
-                 f"there is no same-set value): {', '.join(unjudged)}. ")  # fmt: skip
+    if unjudged := [g.label for g, j in judged.items() if j.status == "not judged"]:
+        text += (
+            "Not judged (their paper prints an average only, over all of its actions, so there "
+            f"is no same-set value): {', '.join(unjudged)}. "
+        )
     missed = {g: j for g, j in judged.items() if j.status == "misses"}
     if not missed and len(unjudged) < len(judged):
         text += "Every trained row with a published same-set average meets it."
     if missed:
-        text += "Rows that miss it: " + "; ".join(
-            f"{results.label(g)} ({notes.get(results.label(g), 'no explanation given')})"
-            for g in missed) + "."  # fmt: skip
-    for g, judgement in missed.items():
-        if not (means := results.validation_means(g, protocol)):
-            continue
-        same, steps = results.same_set(g, judgement.reference), list(means)
-        when = f"iterations {steps[0]:,} to {steps[-1]:,}" if steps[1:] else f"iteration {steps[0]:,}"
-        if len(gaps := {b - a for a, b in zip(steps, steps[1:], strict=False)}) == 1:
-            when += f", every {gaps.pop():,}"
-        if (n := len(results.entries[g].runs)) > 1:
-            when += f"; mean over {n} seeds"
-        horizons = sorted({ms for hs in judgement.missed.values() for ms in hs})
-        text += f" {results.label(g)} at each validation ({when}): " + ", ".join(
-            " ".join(fmt(means[i].get(ms)) for i in steps) + f" at {ms} ms (published "
-            f"{fmt(same.get(ms))})" for ms in horizons) + "."  # fmt: skip
+        why = [f"{g.label} ({notes.get(g.label, 'no explanation given')})" for g in missed]
+        text += "Rows that miss it: " + "; ".join(why) + "."
+    text += "".join(_validation_text(results, g, protocol, j) for g, j in missed.items())
     return [text, ""]
 
 
 def data_lines(results: Results) -> list[str]:
     """What this data copy lacks (the files, the training files of each dataset's evaluated
     actions), and the published values that are slips of the papers."""
-    everyone = [r for g in results.groups for r in g.runs] + results.baselines
-    missing = sorted({m for e in everyone for m in e.get("missing_files") or []})
+    everyone = [r for g in results.entries for r in g.runs]
+    missing = sorted({m for r in everyone for m in r.get("missing_files") or []})
     lines = [
         f"**Data copy.** It lacks {len(missing)} file(s) of the full archives; training used what "
         "exists (`data.allow_partial=true`), actions without test files are absent: "
@@ -391,50 +442,60 @@ def data_lines(results: Results) -> list[str]:
     ] * bool(missing)
     shown = set()
     for group in headline_groups(results):
-        g = results.g_of(group)
-        files = training_files(group.runs[0]["config"], results.evaluated[g], missing_of(group))
-        if (short := [f"{a} {p} of {n}" for a, (p, n) in files.items() if p < n]) and (
-                group.dataset not in shown):  # fmt: skip
+        evaluated = results.actions(group, judged=False)
+        files = training_files(group.runs[0]["config"], evaluated, missing_of(group))
+        short = [f"{a} {p} of {n}" for a, (p, n) in files.items() if p < n]
+        if short and group.dataset not in shown:
             shown.add(group.dataset)
-            lines.append(f"- {group.dataset}: training files of the evaluated actions present (of "
-                         "the full archive's): " + ", ".join(short) + ".")  # fmt: skip
-        for ref in results.references(g):
-            if slips := known_slips(ref.key, results.evaluated[g]):
+            lines.append(
+                f"- {group.dataset}: training files of the evaluated actions present (of the full "
+                "archive's): " + ", ".join(short) + "."
+            )
+        for ref in results.references(group):
+            if slips := known_slips(ref.key, evaluated):
                 lines.append(
                     f"- {group.label}: the published values ({ref.key}) of {', '.join(slips)} are "
                     "slips of the paper (shared docs/published_results.md): "
-                    + "; ".join(slips.values()) + ". Kept as printed, so the published averages "
-                    "that include them are off too."
-                )  # fmt: skip
+                    + "; ".join(slips.values())
+                    + ". Kept as printed, so the published averages that include them are off too."
+                )
     return [*lines, ""] if lines else []
 
 
-def build_page(results, protocols, command, budget, commit, targets, notes=None,
-               figures=(None, None), tables=None) -> str:  # fmt: skip
+def build_page(
+    results, protocols, command, budget, commit, targets, notes=None, figures=(), tables=None
+) -> str:
     """The page's markdown; `figures`: the two figures' file names beside it; `tables`: the
     folder of the per-action CSV files (<metric>_<protocol>.csv), relative to the page."""
-    first = protocols[0]
+    first, where = protocols[0], PROTOCOLS.get(protocols[0], protocols[0])
     intro = (
         f"Generated by `python -m src.report` on {dt.date.today()} at commit {commit} from the "
         "runs under Provenance (the command is at the end); do not edit by hand. Average "
-        f"Euler-angle error (radians) over the evaluated actions, {PROTOCOLS.get(first, first)}."
+        f"Euler-angle error (radians) over the evaluated actions, {where}."
     )
-    lines = ["# Results", "", *headline(results, first, targets, list(figures), "#ablations", intro)]
+    lines = [
+        "# Results",
+        "",
+        *headline(results, first, targets, list(figures), "#ablations", intro),
+    ]
     lines += [f"**Budget.** {budget}", ""] if budget else []
     lines += reading(results) + target_paragraph(results, first, targets, notes or {})
     lines += data_lines(results) + claims_section(results, protocols, "Ablations")
-    lines += ["## Provenance", "", provenance_table(results), "", "Run folders are named "
-              "relative to the folder that holds them all (the project's, for runs under its "
-              "outputs/).", ""]  # fmt: skip
-    for metric, what in (("euler", "Euler-angle error (radians)"),
-                         ("mpjpe", "MPJPE (mm on H3.6M, skeleton units on CMU)")):  # fmt: skip
+    folders = "Run folders are named relative to the folder that holds them all (the project's, "
+    folders += "for runs under its outputs/)."
+    lines += ["## Provenance", "", provenance_table(results), "", folders, ""]
+    for metric, what in (("euler", "Euler-angle error (radians)"), ("mpjpe", "MPJPE")):
         for k, protocol in enumerate(protocols):
-            lines += [f"## Averages: {what}, {PROTOCOLS.get(protocol, protocol)}", "",
-                      averages_table(results, protocol, metric, k == 0), ""]  # fmt: skip
+            table = averages_table(results, protocol, metric, published=k == 0)
+            lines += [f"## Averages: {what}, {PROTOCOLS.get(protocol, protocol)}", "", table, ""]
     if tables:
-        links = ", ".join(f"[{m} {p}]({tables}/{m}_{p}.csv)" for m in ("euler", "mpjpe")
-                          for p in protocols)  # fmt: skip
-        lines += ["## Per-action tables", "", "Each experiment's and baseline's per-action table "
-                  "(mean and std over the seeds, the published value, notes on absent and "
-                  f"untrained actions), as CSV: {links}.", ""]  # fmt: skip
+        links = [f"[{m} {p}]({tables}/{m}_{p}.csv)" for m in ("euler", "mpjpe") for p in protocols]
+        lines += [
+            "## Per-action tables",
+            "",
+            "Each experiment's and baseline's per-action table as CSV (mean and std over the "
+            "seeds, the published value, notes on absent and untrained actions; MPJPE in mm on "
+            f"H3.6M, skeleton units on CMU): {', '.join(links)}.",
+            "",
+        ]
     return "\n".join([*lines, "## Command", "", f"`{command}`", ""])

@@ -34,17 +34,8 @@ BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
 RECORD_FORMAT = 1
 RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
-KEPT = (
-    "finished",
-    "wall_time_s",
-    "train_time_s",
-    "commit",
-    "device",
-    "missing_files",
-    "train_missing_files",
-    "archive_sha256",
-    "validations",
-)
+KEPT = "finished wall_time_s train_time_s commit device missing_files train_missing_files "
+KEPT = (KEPT + "archive_sha256 validations").split()
 
 
 def _is_run(folder: Path) -> bool:
@@ -309,13 +300,9 @@ def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) 
             entry = {"label": model, "dataset": dataset, "commit": commit, "results": {}}
             for protocol in protocols:
                 print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
+                overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
                 entry["results"][protocol] = evaluate(
-                    [
-                        f"model={model}",
-                        f"data={dataset}",
-                        "data.allow_partial=true",
-                        f"protocol={protocol}",
-                    ],
+                    [*overrides, "data.allow_partial=true"],
                     work / "baselines" / f"{model}_{dataset}_{protocol}",
                 )
                 entry["missing_files"] = entry["results"][protocol]["provenance"]["missing_files"]
@@ -334,7 +321,7 @@ def mark_archives(entries: list[dict], archives: Path | None) -> None:
         if name not in hashes:
             digest = hashlib.sha256()
             with (archives / name).open("rb") as fh:
-                for block in iter(lambda: fh.read(1 << 20), b""):
+                while block := fh.read(1 << 20):
                     digest.update(block)
             hashes[name] = f"{name} {digest.hexdigest()[:16]}…"
         entry["archive_sha256"] = hashes[name]
