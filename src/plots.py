@@ -24,6 +24,7 @@ from src.models.baselines import ZeroVelocity
 
 # (right side and spine, left side): two shades tell the limbs apart.
 OBSERVED = ("#303030", "#9a9a9a")
+VIEW = (12.0, -70.0)  # elevation and azimuth of the camera, degrees
 PALETTE = {
     "green": ("#1a7f37", "#7fd18b"),
     "red": ("#c62828", "#f28b82"),
@@ -82,12 +83,9 @@ def predict_window(dm: MotionDataModule, module, index: int) -> dict:
         pred = module(observed, T, action=item["action"][None].to(module.device))[0]
     finally:
         module.train(was_training)
-    norm = module.normalizer
-    return {
-        "observed": norm.unnormalize(observed[0]).cpu(),
-        "future": norm.unnormalize(item["future"].to(module.device)).cpu(),
-        "prediction": norm.unnormalize(pred).cpu(),
-    }
+    future = item["future"].to(module.device)
+    frames = {"observed": observed[0], "future": future, "prediction": pred}
+    return {k: module.normalizer.unnormalize(v).cpu() for k, v in frames.items()}
 
 
 def data_name(dm: MotionDataModule) -> str:
@@ -97,14 +95,9 @@ def data_name(dm: MotionDataModule) -> str:
 
 
 def window_rows(
-    dm: MotionDataModule,
-    module,
-    index: int,
-    baseline: bool = True,
-    observed_shown: int = 25,
-    name: str | None = None,
-    dataset: str | None = None,
-) -> tuple[list[PoseRow], int, str]:
+    dm: MotionDataModule, module, index: int, baseline: bool = True, observed_shown: int = 25,
+    name: str | None = None, dataset: str | None = None
+) -> tuple[list[PoseRow], int, str]:  # fmt: skip
     """(rows, n_observed, description) of evaluation window `index` (into `dm.eval_windows`)
     for `frame_strip` / `animate`: the prediction of `module` (a MotionPredictor), the ground
     truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
@@ -116,16 +109,13 @@ def window_rows(
     skeleton = Skeleton.load(module.dataset)
     name = name or module.run_info.get("config", {}).get("model", {}).get("name")
     name = name or type(module.net).__name__
-    rows = [
-        PoseRow(
-            f"prediction ({name})", positions(torch.cat([obs, frames["prediction"]]), skeleton)
-        ),
-        PoseRow("ground truth", positions(torch.cat([obs, frames["future"]]), skeleton), "green"),
-    ]
+    shown = {"prediction": (f"prediction ({name})", "red"), "future": ("ground truth", "green")}
     if baseline and not isinstance(module.net, ZeroVelocity):
         # Zero-velocity repeats the last observed frame (protocol §7.1).
-        still = obs[-1:].expand(T, -1)
-        rows.append(PoseRow("zero-velocity", positions(torch.cat([obs, still]), skeleton), "blue"))
+        frames["still"] = obs[-1:].expand(T, -1)
+        shown["still"] = ("zero-velocity", "blue")
+    rows = [PoseRow(label, positions(torch.cat([obs, frames[k]]), skeleton), color)
+            for k, (label, color) in shown.items()]  # fmt: skip
     w = dm.eval_windows[index]
     window = sum(v.action == w.action for v in dm.eval_windows[:index])  # among its action's
     what = (
@@ -218,17 +208,9 @@ def _check_rows(rows: Sequence[PoseRow], n_observed: int) -> int:
 
 
 def frame_strip(
-    rows: Sequence[PoseRow],
-    skeleton: Skeleton,
-    n_observed: int,
-    frame_ms: float = 40,
-    step: int = 3,
-    n_before: int = 3,
-    title: str | None = None,
-    elev: float = 12.0,
-    azim: float = -70.0,
-    cell: float = 1.15,
-) -> Figure:
+    rows: Sequence[PoseRow], skeleton: Skeleton, n_observed: int, frame_ms: float = 40,
+    step: int = 3, n_before: int = 3, title: str | None = None, view=VIEW, cell: float = 1.15
+) -> Figure:  # fmt: skip
     """A grid of poses in the manner of Li et al. (2018) Figure 3: one row per motion (e.g.
     prediction, ground truth underneath, zero-velocity), the last observed frames in grey then
     future frames in colour; column titles give the time from the last observed frame."""
@@ -242,23 +224,15 @@ def frame_strip(
     for r, row in enumerate(rows):
         for c, t in enumerate(frames):
             ax = fig.add_subplot(len(rows), len(frames), r * len(frames) + c + 1, projection="3d")
-            _setup_axes(ax, box, elev, azim)
+            _setup_axes(ax, box, *view)
             colors = OBSERVED if t < n_observed else PALETTE[row.color]
             draw_skeleton(ax, row.positions[t], bones, colors, sides, linewidth=1.4)
             if r == 0:
                 ms = (t - (n_observed - 1)) * frame_ms
                 ax.set_title(f"{ms:+.0f} ms" if ms else "0 ms", fontsize=8, pad=0)
         y = 0.86 - (r + 0.5) * 0.86 / len(rows)
-        fig.text(
-            0.01,
-            y,
-            row.label,
-            rotation=90,
-            va="center",
-            ha="left",
-            fontsize=9,
-            color=PALETTE[row.color][0],
-        )
+        color = PALETTE[row.color][0]
+        fig.text(0.01, y, row.label, rotation=90, va="center", fontsize=9, color=color)
     fig.suptitle(
         (title + "\n" if title else "") + "grey: observed, colour: future (time from the "
         "last observed frame)",
@@ -268,16 +242,9 @@ def frame_strip(
 
 
 def animate(
-    rows: Sequence[PoseRow],
-    skeleton: Skeleton,
-    n_observed: int,
-    frame_ms: float = 40,
-    title: str | None = None,
-    elev: float = 12.0,
-    azim: float = -70.0,
-    size: float = 3.0,
-    dpi: int = 80,
-) -> FuncAnimation:
+    rows: Sequence[PoseRow], skeleton: Skeleton, n_observed: int, frame_ms: float = 40,
+    title: str | None = None, view=VIEW, size: float = 3.0, dpi: int = 80
+) -> FuncAnimation:  # fmt: skip
     """The rows side by side as 3D stick figures, one animation frame per motion frame.
 
     Observed frames are grey; from the first future frame on each row takes its own colour.
@@ -293,7 +260,7 @@ def animate(
     all_lines = []
     for i, row in enumerate(rows):
         ax = fig.add_subplot(1, len(rows), i + 1, projection="3d")
-        _setup_axes(ax, box, elev, azim)
+        _setup_axes(ax, box, *view)
         ax.set_title(row.label, color=PALETTE[row.color][0], fontsize=10)
         all_lines.append(draw_skeleton(ax, row.positions[0], bones, OBSERVED, sides))
     clock = fig.suptitle("", fontsize=9)
@@ -343,14 +310,13 @@ def line_panels(
             if not curve.values:
                 raise ValueError(f"curve {curve.label!r} has no values")
             xs = sorted(int(x) for x in curve.values)
-            ys = [curve.values[x] if x in curve.values else curve.values[str(x)] for x in xs]
+            ys = np.array([curve.values.get(x, curve.values.get(str(x))) for x in xs])
             ticks.update(xs)
             color = f"C{(n if curve.color is None else curve.color) % 10}"
             ax.plot(xs, ys, curve.style, marker="o", ms=3, color=color, label=curve.label)
             if curve.std:
-                std = [curve.std.get(x, 0.0) for x in xs]
-                low, high = [y - s for y, s in zip(ys, std)], [y + s for y, s in zip(ys, std)]
-                ax.fill_between(xs, low, high, color=color, alpha=0.15, lw=0)
+                std = np.array([curve.std.get(x, 0.0) for x in xs])
+                ax.fill_between(xs, ys - std, ys + std, color=color, alpha=0.15, lw=0)
         if len(ticks) <= 12:
             ax.set_xticks(sorted(ticks))
         ax.set(xlabel=xlabel, ylabel=ylabel)

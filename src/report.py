@@ -26,7 +26,8 @@ from src.cli import hydra_entry, silence_false_warnings
 from src.lit.factory import PROJECT_ROOT, ConfigError, git_commit, register_resolvers
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
-from src.reporting.page import build_page, figures, per_action_csv, readme_block, replace_block
+from src.reporting.headline import figures, readme_block
+from src.reporting.page import build_page, per_action_csv, replace_block
 from src.reporting.runs import (
     discover_runs,
     display_root,

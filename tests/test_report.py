@@ -17,13 +17,12 @@ from src.lit.factory import ConfigError
 from src.report import main
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
+from src.reporting.headline import headline_table, readme_block
 from src.reporting.page import (
     averages_table,
     build_page,
-    headline_table,
     per_action_csv,
     provenance_table,
-    readme_block,
     replace_block,
 )
 from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
@@ -462,7 +461,9 @@ def test_target_verdict_at_the_printed_precision(delta, within):
     assert gaps[0].endswith(f"({delta:+.2f}, {delta:+.2f})")
     # Every published horizon misses (1000 ms included; 560 ms has no published value).
     assert verdict == ("within 0.03" if within else "beyond 0.03 at 80, 160, 320, 400, 1000 ms")
-    assert results.judge(results.groups[0], "srnn", 0.03).status == ("reproduces" if within else "misses")
+    assert results.judge(results.groups[0], "srnn", 0.03).status == (
+        "reproduces" if within else "misses"
+    )
 
 
 @pytest.mark.parametrize("delta", [0.0333, 0.0368])
@@ -639,7 +640,7 @@ def test_both_budgets_are_rows_of_the_headline_the_longest_with_the_verdict(tmp_
     ]
     assert rows[0][-1].startswith("**reproduces**") and rows[1][-1] == "shorter budget"
     assert not why  # the shorter budget's miss is not the experiment's
-    from src.reporting.page import figures
+    from src.reporting.headline import figures
 
     _, validation = figures(results, "srnn")
     titles = [ax.get_title() for ax in validation.axes]
@@ -654,3 +655,20 @@ def test_both_budgets_are_rows_of_the_headline_the_longest_with_the_verdict(tmp_
         "1000 ms, published",
     ]
     assert list(lines[0].get_xdata()) == [2000, 20000]
+
+
+@pytest.mark.slow
+def test_the_command_line_report_prints_lightnings_tip_at_most_once(tmp_path, synthetic_data_dir):
+    """A report evaluates many checkpoints and baselines; Lightning's advertisement ("💡 Tip:
+    ... litlogger") used to be printed once per evaluation. Each report writes into a new folder
+    of its own, never over another's."""
+    from tests.conftest import run_module
+
+    args = ["datasets=[synthetic]", "protocols=[srnn]", "budget=b"]
+    for _ in range(2):
+        proc = run_module("src.report", *args, data_dir=synthetic_data_dir, log_dir=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert (proc.stdout + proc.stderr).count("litlogger") <= 1
+        assert proc.stdout.count("evaluating ") == 3  # the three baselines
+    pages = sorted((tmp_path / "report" / "runs" / "page").glob("*/results.md"))
+    assert len(pages) == 2 and "| zero_velocity " in pages[0].read_text()

@@ -13,14 +13,8 @@ from src.report import main
 from src.reporting.claims import claims, claims_section
 from src.reporting.frame import Results
 from src.reporting.groups import ABLATIONS, group_runs
-from src.reporting.page import (
-    averages_table,
-    build_page,
-    figures,
-    headline_table,
-    reading,
-    readme_block,
-)
+from src.reporting.headline import figures, headline_table, readme_block
+from src.reporting.page import averages_table, build_page, reading
 from src.reporting.published import KNOWN_SLIPS, published_for
 from src.reporting.runs import display_root
 from src.reporting.tables import AVERAGE, same_set_average
@@ -147,9 +141,7 @@ def test_the_verdict_names_the_reference_it_was_judged_against_and_why():
     assert martinez[-1] == "beyond 0.03 at 80, 160, 320, 400 ms"
     # A model with one reference is judged against it, with no reason needed.
     single = Results(group_runs([seeded(0.0, 1)]))
-    assert single.judge(single.groups[0], "srnn", 0.03).why == (
-        "the only published source"
-    )
+    assert single.judge(single.groups[0], "srnn", 0.03).why == ("the only published source")
 
 
 def test_without_a_slip_the_models_own_paper_is_the_judge():
