@@ -72,6 +72,8 @@ def main(cfg: DictConfig) -> int:
     if readme:
         replace_block(readme, "results")  # before hours of evaluation, not after
     commit, work = git_commit(), Path(cfg.paths.output_dir)  # the commit before any write
+    # The command as given: each evaluation below composes a config of its own.
+    command = shlex.join(["python", "-m", "src.report", *HydraConfig.get().overrides.task])
     work.mkdir(parents=True, exist_ok=True)
     paths = discover_runs(_list(cfg.runs))
     root = display_root(paths) if paths else PROJECT_ROOT
@@ -111,8 +113,6 @@ def main(cfg: DictConfig) -> int:
         if figure is not None:
             figure.savefig(out.with_name(f"{out.stem}_{kind}.png"))
         names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
-    overrides = list(HydraConfig.get().overrides.task)
-    command = shlex.join(["python", "-m", "src.report", *overrides])
     page = build_page(
         results, protocols, command, cfg.budget, commit, targets, notes, names, tables.name
     )

@@ -500,7 +500,8 @@ def test_target_paragraph_names_the_rows_that_miss_with_their_notes():
     ]
     # The row that misses gets its diagnosis under the headline: the actions that carry the
     # gap, the seed spread against it, what was compared with the reference code.
-    why = block.split("**Why rows miss.**")[1].strip().splitlines()
+    assert "Why rows miss" not in block  # on the page, under its headline
+    why = page_of(runs).split("**Why rows miss.**")[1].strip().split("\n\n")[0].splitlines()
     assert len(why) == 1 and why[0].startswith("- li2018_cmu (4,000 iterations) misses most at")
     assert "One seed: no spread" in why[0] and "VALID padding" in why[0]
     assert "Every trained row" in page_of(runs[:1])
@@ -672,3 +673,6 @@ def test_the_command_line_report_prints_lightnings_tip_at_most_once(tmp_path, sy
         assert proc.stdout.count("evaluating ") == 3  # the three baselines
     pages = sorted((tmp_path / "report" / "runs" / "page").glob("*/results.md"))
     assert len(pages) == 2 and "| zero_velocity " in pages[0].read_text()
+    # The command at the end is the report's own, not that of an evaluation it ran.
+    last = pages[0].read_text().rstrip().splitlines()[-1]
+    assert last.startswith("`python -m src.report ") and "datasets=[synthetic]" in last

@@ -305,4 +305,4 @@ class Results:
             text += f"{size} than the gap."
         else:
             text += " One seed: no spread to weigh the gap against."
-        return text + (f" Compared with the reference code: {checked}." if checked else "")
+        return text + (f" {checked}." if checked else "")

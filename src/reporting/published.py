@@ -141,7 +141,7 @@ ALSO_PUBLISHED: dict[tuple[str, str], list[dict]] = {
 # What was compared with an experiment's reference code, for the diagnosis of a row that misses
 # its target (facts: the shared docs/protocol.md).
 REFERENCE_CODE_CHECKED: dict[str, str] = {
-    "li2018_cmu": "every setting was checked against Li et al.'s reference code: the actions "
+    "li2018_cmu": "Every setting was checked against Li et al.'s reference code: the actions "
     "trained together, iterations, batch, learning rate and its decay, window lengths, the "
     "dimensions kept, the normalisation rule, VALID padding, test-window selection and seed, "
     "the Euler error"
