@@ -23,7 +23,7 @@ from src.lit.factory import ConfigError
 from src.lit.run_folders import nothing_left_if_refused
 from src.plots import error_vs_horizon
 from src.reporting.published import published_datasets
-from src.results import read_results
+from src.reporting.tables import read_results
 
 METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
 

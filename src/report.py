@@ -3,19 +3,21 @@
     python -m src.report runs=[outputs/reproduce/multiruns/<time>] budget="..."
     python -m src.report runs=[<new runs>] records=docs/runs out=docs/results.md readme=README.md
 
-Runs are found and evaluated (best and last checkpoints, each protocol) in src/reporting/runs.py
-with the baselines, grouped by experiment, dataset and budget in groups.py, collected into one
-long DataFrame in frame.py that decides the verdicts; page.py and claims.py lay out the page.
-Every number comes from those evaluations and the published tables; nothing is typed in. With
-records=DIR each run evaluated is also recorded there, and the runs recorded there join the
-page without their folders: a page can grow over several machines, a few runs at a time.
+Runs are found and recorded in src/reporting/runs.py, evaluated here as src.eval does (best and
+last checkpoints, each protocol) with the baselines, grouped by experiment, dataset and budget in
+groups.py and collected into one long DataFrame in frame.py, which decides the verdicts;
+headline.py, claims.py and page.py lay out the page. Every number comes from those evaluations
+and the published tables; nothing is typed in. With records=DIR each run evaluated is also
+recorded there, and the runs recorded there join the page without their folders.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import json
 import os
+import re
 import shlex
 from pathlib import Path
 
@@ -23,33 +25,68 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry, silence_false_warnings
-from src.lit.factory import PROJECT_ROOT, ConfigError, git_commit, register_resolvers
+from src.lit.compose import compose_config
+from src.lit.factory import ConfigError, git_commit, register_resolvers
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
 from src.reporting.headline import figures, readme_block
 from src.reporting.page import build_page, per_action_csv, replace_block
-from src.reporting.runs import (
-    discover_runs,
-    display_root,
-    evaluate_baselines,
-    evaluate_run,
-    load_run,
-    mark_archives,
-    read_records,
-    record_name,
-    scored_entries,
-    write_record,
-)
+from src.reporting.runs import gather_runs, mark_archives, scored_entries, write_record
+from src.results import evaluate as run_eval
 
 register_resolvers()
+BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 
-def same_folder(a: str, b: str) -> bool:
-    """Whether two shown paths name one run folder: each is relative to the root of the report
-    that showed it, so the shorter ends the longer."""
-    pa, pb = Path(a).parts, Path(b).parts
-    n = min(len(pa), len(pb))
-    return n > 0 and pa[-n:] == pb[-n:]
+def evaluate(overrides: list[str], out_dir: Path) -> dict:
+    """One src.eval evaluation (its results.json as a dict), written into out_dir; the tables
+    it prints go to a file beside its results instead of the console."""
+    cfg = compose_config("eval", overrides, out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
+        return run_eval(cfg)
+
+
+def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
+    """The run's best and last checkpoints on each protocol, into run["results"]."""
+    checkpoints, iterations = run["checkpoints"], run["iterations_of"]
+    name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
+    same = checkpoints["last"] == checkpoints["best"]
+    run["results"] = {"best": {}}
+    if same or (iterations["best"] is not None and iterations["best"] == iterations["last"]):
+        run["results"]["last"] = run["results"]["best"]
+        # One file for both means one was missing (find_checkpoints said which), not that the
+        # error was lowest at the end.
+        run["notes"] += [] if same else ["best = last (lowest error at the final validation)"]
+    else:
+        run["results"]["last"] = {}
+    for selection, results in run["results"].items():
+        for protocol in protocols if not results else ():
+            print(f"evaluating {run['path']} ({selection}, {protocol})", flush=True)
+            results[protocol] = evaluate(
+                [f"ckpt_path='{checkpoints[selection]}'", f"protocol={protocol}"],
+                work / f"{index:03d}_{name}_seed{run['seed']}" / f"{selection}_{protocol}",
+            )
+    run["missing_files"] = run["results"]["best"][protocols[0]]["provenance"]["missing_files"]
+
+
+def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
+    """Each baseline on each dataset and protocol: [{label, dataset, commit, results}]."""
+    baselines = []
+    for dataset in datasets:
+        for model in BASELINES:
+            entry = {"label": model, "dataset": dataset, "commit": commit, "results": {}}
+            for protocol in protocols:
+                print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
+                overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
+                result = evaluate(
+                    [*overrides, "data.allow_partial=true"],
+                    work / "baselines" / f"{model}_{dataset}_{protocol}",
+                )
+                entry["results"][protocol] = result
+                entry["missing_files"] = result["provenance"]["missing_files"]
+            baselines.append(entry)
+    return baselines
 
 
 def _list(value) -> list:
@@ -64,28 +101,17 @@ def main(cfg: DictConfig) -> int:
     try:
         targets = {str(d): float(t) for d, t in cfg.targets.items()}
     except ValueError:
-        raise ConfigError(
-            f"targets={OmegaConf.to_container(cfg.targets)}: each a number of "
-            "radians, e.g. targets.h36m=0.03"
-        ) from None
-    readme = Path(cfg.readme) if cfg.readme else None
+        shown = OmegaConf.to_container(cfg.targets)
+        message = f"targets={shown}: each a number of radians, e.g. targets.h36m=0.03"
+        raise ConfigError(message) from None
+    readme, records = (Path(x) if x else None for x in (cfg.readme, cfg.records))
     if readme:
         replace_block(readme, "results")  # before hours of evaluation, not after
     commit, work = git_commit(), Path(cfg.paths.output_dir)  # the commit before any write
     # The command as given: each evaluation below composes a config of its own.
     command = shlex.join(["python", "-m", "src.report", *HydraConfig.get().overrides.task])
     work.mkdir(parents=True, exist_ok=True)
-    paths = discover_runs(_list(cfg.runs))
-    root = display_root(paths) if paths else PROJECT_ROOT
-    runs = [load_run(path, root) for path in paths]
-    if cfg.records:  # a folder given again replaces its record
-        given = [(record_name(r), r["path"]) for r in runs]
-        runs += [
-            r
-            for r in read_records(Path(cfg.records), protocols)
-            if not any(record_name(r) == name and same_folder(r["path"], p) for name, p in given)
-        ]
-    groups = group_runs(runs)
+    groups = group_runs(gather_runs(_list(cfg.runs), records, protocols))
     notes = parse_notes([str(n) for n in _list(cfg.notes)], groups)  # before evaluating
     scored = scored_entries([Path(p) for p in _list(cfg.scored)], protocols)
     fresh = [r for g in groups for r in g.runs if not r.get("recorded")]
@@ -93,10 +119,10 @@ def main(cfg: DictConfig) -> int:
         evaluate_run(run, index, protocols, work)
     datasets = sorted({g.dataset for g in groups}) if cfg.datasets is None else cfg.datasets
     baselines = evaluate_baselines(datasets, protocols, work, commit) + scored
-    archives = os.environ.get("MOTION_ARCHIVES")
-    mark_archives(fresh + baselines, Path(archives) if archives else None)  # a record keeps its
-    for run in fresh if cfg.records else ():
-        path = write_record(run, Path(cfg.records), commit, dt.date.today().isoformat())
+    archives = os.environ.get("MOTION_ARCHIVES")  # a record keeps the hash it was evaluated on
+    mark_archives(fresh + baselines, Path(archives) if archives else None)
+    for run in fresh if records else ():
+        path = write_record(run, records, commit, dt.date.today().isoformat())
         print(f"recorded {run['path']} as {path}")
 
     results = Results(groups, baselines)
@@ -105,14 +131,13 @@ def main(cfg: DictConfig) -> int:
     tables.mkdir(parents=True, exist_ok=True)
     for metric in ("euler", "mpjpe"):
         for protocol in protocols:
-            (tables / f"{metric}_{protocol}.csv").write_text(
-                per_action_csv(results, protocol, metric)
-            )
+            csv = per_action_csv(results, protocol, metric)
+            (tables / f"{metric}_{protocol}.csv").write_text(csv)
     names = []
     for figure, kind in zip(figures(results, protocols[0]), ("errors", "validation"), strict=True):
-        if figure is not None:
-            figure.savefig(out.with_name(f"{out.stem}_{kind}.png"))
         names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
+        if figure is not None:
+            figure.savefig(out.with_name(names[-1]))
     page = build_page(
         results, protocols, command, cfg.budget, commit, targets, notes, names, tables.name
     )
@@ -121,23 +146,11 @@ def main(cfg: DictConfig) -> int:
     if readme:
         here = readme.resolve().parent
         figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
-        block = readme_block(
-            results, protocols[0], commit, targets, figure, os.path.relpath(out, here)
-        )
+        page = os.path.relpath(out, here)
+        block = readme_block(results, protocols[0], commit, targets, figure, page)
         replace_block(readme, "results", block)
-    raw = {
-        "groups": [
-            {
-                "label": g.label,
-                "dataset": g.dataset,
-                "iterations": g.iterations,
-                "settings": g.settings,
-                "runs": g.runs,
-            }
-            for g in groups
-        ],
-        "baselines": baselines,
-    }
+    raw = [{"label": g.label, "dataset": g.dataset, "runs": g.runs} for g in groups]
+    raw = {"groups": raw, "baselines": baselines}
     (work / "report.json").write_text(json.dumps(raw, indent=1, default=str))
     results.frame.to_csv(work / "results_long.csv", index=False)
     print(

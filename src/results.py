@@ -1,7 +1,7 @@
 """src.eval's work: a baseline, a trained checkpoint (tested as a MotionPredictor) or a file of
 predictions (src/scoring.py) evaluated on the protocol's test windows. `evaluate` writes the
-tables as results.{md,csv,json} into the run's folder; `read_results` reads results.json back
-(src.plot_errors, src.report).
+tables as results.{md,csv,json} into the run's folder (src/reporting/tables.py's format, which
+`read_results` there reads back for src.plot_errors and src.report).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 import lightning as L
 from omegaconf import DictConfig
 
-from src.lit.factory import ConfigError, build_for_evaluation, build_trainer, git_commit
+from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
 from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
@@ -87,20 +87,3 @@ def evaluate(cfg: DictConfig) -> dict:
     print(markdown)
     print(f"\nwritten to {out_dir}")
     return result
-
-
-def read_results(path: str | Path) -> dict:
-    """The parsed results.json of one `python -m src.eval` run."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(
-            f"results file not found: {path}. `python -m src.eval ...` writes results.json "
-            "into its run folder under outputs/eval/runs/."
-        )
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ConfigError(f"{path} is not valid JSON: {err}") from err
-    if not isinstance(data, dict) or "tables" not in data:
-        raise ConfigError(f"{path} has no 'tables'; is it a results.json from src.eval?")
-    return data

@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from src.lit.factory import ConfigError
-from src.report import main
+from src.report import evaluate_run, main
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
 from src.reporting.headline import headline_table, readme_block
@@ -26,7 +26,7 @@ from src.reporting.page import (
     replace_block,
 )
 from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
-from src.reporting.runs import discover_runs, evaluate_run, find_checkpoints
+from src.reporting.runs import discover_runs, find_checkpoints
 from src.reporting.tables import AVERAGE, result_table, same_set_average
 from tests.conftest import compose_config
 
@@ -174,7 +174,7 @@ def test_a_run_without_a_best_checkpoint_is_not_said_to_have_its_lowest_error_at
     tmp_path, monkeypatch
 ):
     evaluation = {"provenance": {"missing_files": []}}
-    monkeypatch.setattr("src.reporting.runs.evaluate", lambda overrides, out_dir: evaluation)
+    monkeypatch.setattr("src.report.evaluate", lambda overrides, out_dir: evaluation)
     run = make_run(tmp_path / "run", summary={"best_checkpoint": ""})
     checkpoints, notes = find_checkpoints(run)
     record = {

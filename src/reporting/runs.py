@@ -1,6 +1,6 @@
 """Where src.report's runs come from: finished run folders (config.yaml beside checkpoints/ or
-summary.yaml, src.train's layout), evaluated here as src.eval does; run records, a run's
-evaluations kept as one small JSON file (docs/runs); and scored predictions files.
+summary.yaml, src.train's layout), which src.report evaluates as src.eval does; run records, a
+run's evaluations kept as one small JSON file (docs/runs); and scored predictions files.
 
 Each run is evaluated twice on each protocol: its best checkpoint (lowest validation error;
 validation runs on the test windows, as in both reference implementations, so this selection
@@ -13,7 +13,6 @@ evaluates only the runs it is given and reads the others from their records. A r
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import json
 import os
@@ -22,15 +21,12 @@ from pathlib import Path
 
 import yaml
 
-from src.lit.compose import compose_config
 from src.lit.factory import PROJECT_ROOT, ConfigError
 from src.reporting.groups import identity
+from src.reporting.tables import read_results
 from src.reporting.tensorboard import validation_curve
-from src.results import evaluate as run_eval
-from src.results import read_results
 
 SELECTIONS = ("best", "last")
-BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
 RECORD_FORMAT = 1
 RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
@@ -167,6 +163,26 @@ def load_run(path: Path, root: Path) -> dict:
     }
 
 
+def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list[dict]:
+    """The run folders given (or found under them) and the runs recorded in `records`; a
+    folder given again replaces its record."""
+    folders = discover_runs(paths)
+    root = display_root(folders) if folders else PROJECT_ROOT
+    runs = [load_run(folder, root) for folder in folders]
+    given = [(record_name(r), Path(r["path"]).parts) for r in runs]
+
+    def same_run(record: dict) -> bool:  # shown paths end alike: each is relative to its root
+        mine = Path(record["path"]).parts
+        return any(
+            name == record_name(record)
+            and mine[-min(len(mine), len(theirs)) :] == theirs[-min(len(mine), len(theirs)) :]
+            for name, theirs in given
+        )
+
+    recorded = read_records(records, protocols) if records else []
+    return runs + [r for r in recorded if not same_run(r)]
+
+
 # ------------------------------------------------------------------------------ records
 def record_name(run: dict) -> str:
     config = run["config"]
@@ -254,60 +270,6 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
         }
         runs.append({**record, "recorded": True})
     return runs
-
-
-# ------------------------------------------------------------------------------ evaluation
-def evaluate(overrides: list[str], out_dir: Path) -> dict:
-    """One src.eval evaluation (its results.json as a dict), written into out_dir; the tables
-    it prints go to a file beside its results instead of the console."""
-    cfg = compose_config("eval", overrides, out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
-        return run_eval(cfg)
-
-
-def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
-    """Evaluate the run's best and last checkpoints on each protocol, into run["results"]."""
-    checkpoints, iterations = run["checkpoints"], run["iterations_of"]
-    name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
-    run["results"] = {}
-    for selection in SELECTIONS:
-        if selection == "last" and (
-            checkpoints["last"] == checkpoints["best"]
-            or (iterations["best"] is not None and iterations["best"] == iterations["last"])
-        ):
-            run["results"]["last"] = run["results"]["best"]
-            # One file for both means one was missing (find_checkpoints said which), not that
-            # the error was lowest at the end.
-            if checkpoints["last"] != checkpoints["best"]:
-                run["notes"].append("best = last (lowest error at the final validation)")
-            continue
-        run["results"][selection] = {}
-        for protocol in protocols:
-            print(f"evaluating {run['path']} ({selection}, {protocol})", flush=True)
-            run["results"][selection][protocol] = evaluate(
-                [f"ckpt_path='{checkpoints[selection]}'", f"protocol={protocol}"],
-                work / f"{index:03d}_{name}_seed{run['seed']}" / f"{selection}_{protocol}",
-            )
-    run["missing_files"] = run["results"]["best"][protocols[0]]["provenance"]["missing_files"]
-
-
-def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
-    """Each baseline on each dataset and protocol: [{label, dataset, commit, results}]."""
-    baselines = []
-    for dataset in datasets:
-        for model in BASELINES:
-            entry = {"label": model, "dataset": dataset, "commit": commit, "results": {}}
-            for protocol in protocols:
-                print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
-                overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
-                entry["results"][protocol] = evaluate(
-                    [*overrides, "data.allow_partial=true"],
-                    work / "baselines" / f"{model}_{dataset}_{protocol}",
-                )
-                entry["missing_files"] = entry["results"][protocol]["provenance"]["missing_files"]
-            baselines.append(entry)
-    return baselines
 
 
 def mark_archives(entries: list[dict], archives: Path | None) -> None:

@@ -11,12 +11,15 @@ like when some are absent), and below it the paper's average as printed, over al
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 import pandas as pd
 from torch import Tensor
 
+from src.lit.factory import ConfigError
 from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import ReportingError
 
@@ -218,3 +221,20 @@ def tables_csv(tables: Sequence[Mapping]) -> str:
     published, note, values at full precision."""
     frame = pd.concat([table_frame(t) for t in tables])
     return frame[["metric", "action", "ms", "value", "published", "note"]].to_csv(index=False)
+
+
+def read_results(path: str | Path) -> dict:
+    """The parsed results.json of one `python -m src.eval` run."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(
+            f"results file not found: {path}. `python -m src.eval ...` writes results.json "
+            "into its run folder under outputs/eval/runs/."
+        )
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ConfigError(f"{path} is not valid JSON: {err}") from err
+    if not isinstance(data, dict) or "tables" not in data:
+        raise ConfigError(f"{path} has no 'tables'; is it a results.json from src.eval?")
+    return data
