@@ -2,52 +2,30 @@
 
     python -m src.plot_errors results=[runs/a/t/results.json,runs/b/t/results.json]
     python -m src.plot_errors results=[...] metric=mpjpe action=walking out=walking_mpjpe.png
-    python -m src.plot_errors results=[...] labels=[ours,zero-velocity] published=true
 
-Reads the results.json files written by `python -m src.eval` and draws one line per file for
-the average row (mean over the evaluated actions, protocol §4.1 step 6) or one action.
-`published=true` adds the paper's curve, dashed, where results.json carries one.
-Arguments are `key=value` pairs (OmegaConf's command-line syntax); `out` defaults to
-outputs/plots/errors_<metric>_<action>.png (-1, -2, ... when taken). No file is written over:
-an `out` that exists is refused.
-
-Each line is labelled by its run's name and dataset ("zero_velocity (cmu)"), told apart further
-where two would read the same. All files must come from one dataset: errors on different
-datasets are not comparable on one axis.
+One line per results.json of `python -m src.eval`, for the average row (mean over the evaluated
+actions, protocol §4.1 step 6) or one action; `published=true` adds the paper's curve, dashed,
+where the results carry one. The image goes into the command's own run folder unless `out=`
+names a new file: nothing is written over. Each line is labelled by its run's name and dataset,
+told apart further where two would read the same; the files must share one dataset.
 """
 
 from __future__ import annotations
 
-import difflib
-import sys
 from pathlib import Path
 
 import matplotlib
 from matplotlib.backend_bases import FigureCanvasBase
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
-from src.cli import friendly_errors
-from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.reporting.plots import error_vs_horizon
+from src.cli import hydra_entry
+from src.lit.factory import ConfigError
+from src.lit.run_folders import nothing_left_if_refused
+from src.plots import error_vs_horizon
 from src.reporting.published import published_datasets
-from src.results import read_results
+from src.reporting.tables import read_results
 
 METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
-OPTIONS = {
-    "results": "[a/results.json,b/results.json,...]  the results.json files of src.eval (required)",
-    "metric": "euler|mpjpe  which error (default euler)",
-    "action": "NAME|average  one action, or the mean over the evaluated actions (default)",
-    "labels": "[name,...]  legend entries, one per results file (default: run name and dataset)",
-    "published": "true|false  add the paper's curve, dashed, where the results carry one",
-    "out": "PATH.png  a new file (default outputs/plots/errors_<metric>_<action>[-N].png)",
-}
-
-
-def usage() -> str:
-    """What `python -m src.plot_errors --help` prints."""
-    lines = [__doc__.strip(), "", "Arguments (key=value):"]
-    lines += [f"  {key}={text}" for key, text in OPTIONS.items()]
-    return "\n".join(lines)
 
 
 def curve(
@@ -136,15 +114,6 @@ def check_out(out: Path) -> None:
         )
 
 
-def free_path(path: Path) -> Path:
-    """`path`, or `<stem>-1<suffix>`, `-2`, ... where that exists (the default out=)."""
-    candidate, n = path, 0
-    while candidate.exists():
-        n += 1
-        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
-    return candidate
-
-
 def one_dataset(results: list[dict], paths: list) -> list[str]:
     """The dataset of the results files, which must be one: refuse a mix, naming each file's."""
     found = [r.get("provenance", {}).get("dataset") or "?" for r in results]
@@ -194,51 +163,20 @@ def _tell_apart(labels: list[str], results: list[dict], paths: list, extra) -> l
     return out
 
 
-@friendly_errors
-def main(argv: list[str] | None = None) -> Path | None:
+@hydra_entry("plot_errors")
+def main(cfg: DictConfig) -> Path:
     matplotlib.use("Agg")
-    argv = sys.argv[1:] if argv is None else argv
-    if any(a in ("-h", "--help", "help") for a in argv):
-        print(usage())
-        return None
-    options = [a for a in argv if a.startswith("-")]
-    if options:
-        raise ConfigError(
-            f"unknown option(s) {options}: arguments are key=value; `python -m src.plot_errors "
-            "--help` lists them"
-        )
-    try:
-        args = OmegaConf.from_dotlist(argv)
-    except Exception as err:  # noqa: BLE001 (OmegaConf's grammar errors)
-        raise ConfigError(
-            f"cannot read the arguments {argv}: {' '.join(str(err).split())}. Write key=value, "
-            "e.g. results=[a/results.json,b/results.json]"
-        ) from None
-    unknown = set(args) - set(OPTIONS)
-    if unknown:
-        close = {k: difflib.get_close_matches(str(k), list(OPTIONS), n=1) for k in unknown}
-        hints = [f"{k} (did you mean {c[0]}?)" if c else str(k) for k, c in sorted(close.items())]
-        raise ConfigError(
-            f"unknown argument(s): {', '.join(hints)}. Arguments: {', '.join(OPTIONS)} "
-            "(`python -m src.plot_errors --help`)"
-        )
-    results = args.get("results")
-    if results is None:
+    paths = cfg.results if OmegaConf.is_list(cfg.results) else [cfg.results]
+    if not paths or paths == [None]:
         raise ConfigError("say which runs to plot: results=[path/to/results.json,...]")
-    paths = [str(p) for p in (results if OmegaConf.is_list(results) else [results])]
-    metric, action = args.get("metric", "euler"), args.get("action", "average")
-    out = args.get("out") or free_path(
-        PROJECT_ROOT / "outputs" / "plots" / f"errors_{metric}_{action}.png"
-    )
-    labels = args.get("labels")
-    written = plot_errors(
-        paths,
-        out,
-        metric,
-        action,
-        labels=[str(x) for x in labels] if labels is not None else None,
-        published=bool(args.get("published", False)),
-    )
+    if not isinstance(cfg.published, bool):
+        raise ConfigError(f"published={cfg.published!r}: write true or false")
+    labels = None if cfg.labels is None else [str(x) for x in cfg.labels]
+    out = cfg.out or Path(cfg.paths.output_dir) / f"errors_{cfg.metric}_{cfg.action}.png"
+    with nothing_left_if_refused(None):
+        written = plot_errors(
+            [str(p) for p in paths], out, cfg.metric, cfg.action, labels, cfg.published
+        )
     print(f"written to {written}")
     return written
 

@@ -1,260 +1,164 @@
-"""Write the results page from finished training runs.
+"""Write the results page from finished training runs and run records.
 
-    python -m src.report outputs/train/runs/li2018_cmu/<time> --budget "4000 iterations on a GPU"
-    python -m src.report outputs/reproduce/multiruns/<time> --out docs/results.md \
-        --readme README.md --budget "..."
+    python -m src.report runs=[outputs/reproduce/multiruns/<time>] budget="..."
+    python -m src.report runs=[<new runs>] records=docs/runs out=docs/results.md readme=README.md
 
-Arguments are run folders (config.yaml, summary.yaml, checkpoints/) or folders holding them,
-such as a multirun of `python -m src.train -m reproduce=papers`. Runs are found in
-src/reporting/runs.py and grouped by experiment and dataset in groups.py, seeds aggregated as
-mean ± std; each run's best and last checkpoints and the baselines are evaluated on each
-protocol (src/reporting/evaluation.py); the verdicts and the ablation claims are in
-src/reporting/verdicts.py and claims.py, the page's layout in src/reporting/page.py and its
-headline (also the README's block) in headline.py. Every number on the page comes from those
-evaluations and the published tables; nothing is typed in.
-
-The page and its figure go to the command's own folder (outputs/report/<time>/results.md)
-unless --out names the file; --readme also puts the page's headline between the results
-markers of that file.
-
-With --records DIR, each run evaluated is also written to DIR as a small record (its
-evaluations, no checkpoint), and the runs recorded there join the page without their folders
-(src/reporting/records.py): a page can grow over several machines, a few runs at a time.
-
-    python -m src.report <new runs> --records docs/runs --out docs/results.md --readme README.md
+Runs are found and recorded in src/reporting/runs.py, evaluated here as src.eval does (best and
+last checkpoints, each protocol) with the baselines, grouped by experiment, dataset and budget in
+groups.py and collected into one long DataFrame in frame.py, which decides the verdicts;
+headline.py, claims.py and page.py lay out the page. Every number comes from those evaluations
+and the published tables; nothing is typed in. With records=DIR each run evaluated is also
+recorded there, and the runs recorded there join the page without their folders.
 """
 
 from __future__ import annotations
 
-import argparse
+import contextlib
 import datetime as dt
 import json
-import logging
 import os
+import re
 import shlex
-import sys
 from pathlib import Path
 
-from src.lit.factory import PROJECT_ROOT, git_commit
-from src.reporting.evaluation import evaluate_baselines, evaluate_run, mark_archives
-from src.reporting.groups import group_runs, note_names, parse_notes
-from src.reporting.headline import (
-    check_block,
-    headline_figure,
-    page_order,
-    readme_block,
-    replace_block,
-)
-from src.reporting.page import build_page
-from src.reporting.records import read_records, record_name, write_record
-from src.reporting.runs import discover_runs, display_root, load_run, scored_entries
-from src.reporting.verdicts import PROTOCOLS, TARGETS
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig, OmegaConf
 
-__all__ = ["main", "replace_block"]
+from src.cli import hydra_entry, silence_false_warnings
+from src.lit.compose import compose_config
+from src.lit.factory import ConfigError, git_commit, register_resolvers
+from src.reporting.frame import Results
+from src.reporting.groups import group_runs, parse_notes
+from src.reporting.headline import figures, readme_block
+from src.reporting.page import build_page, per_action_csv, replace_block
+from src.reporting.runs import gather_runs, mark_archives, scored_entries, write_record
+from src.results import evaluate as run_eval
 
-
-def new_folder(base: Path) -> Path:
-    """Create and return `base`, or `base-1`, `base-2`... when taken (two reports in a second)."""
-    candidate, n = base, 0
-    while True:
-        try:
-            candidate.mkdir(parents=True)
-            return candidate
-        except FileExistsError:
-            n += 1
-            candidate = base.with_name(f"{base.name}-{n}")
+register_resolvers()
+BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 
-def same_folder(a: str, b: str) -> bool:
-    """Whether two shown paths name one run folder: each is relative to the root of the report
-    that showed it (src/reporting/runs.py display_root), so the shorter ends the longer."""
-    pa, pb = Path(a).parts, Path(b).parts
-    n = min(len(pa), len(pb))
-    return n > 0 and pa[-n:] == pb[-n:]
+def evaluate(overrides: list[str], out_dir: Path) -> dict:
+    """One src.eval evaluation (its results.json as a dict), written into out_dir; the tables
+    it prints go to a file beside its results instead of the console."""
+    cfg = compose_config("eval", overrides, out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
+        return run_eval(cfg)
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "runs",
-        nargs="*",
-        type=Path,
-        help="run folders, or folders holding them (a multirun folder)",
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="the page to write, its figure beside it (default: results.md in the command's "
-        "own folder, --work-dir; e.g. --out docs/results.md to replace the shipped page)",
-    )
-    parser.add_argument("--budget", default=None, help="one sentence stating the budget")
-    parser.add_argument(
-        "--datasets",
-        nargs="*",
-        default=None,
-        help="datasets for the baselines (default: those of the runs; `--datasets none` or "
-        "`--datasets` alone: no baselines)",
-    )
-    parser.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
-    parser.add_argument(
-        "--scored",
-        nargs="*",
-        type=Path,
-        default=[],
-        help="results.json of `python -m src.eval predictions=...` (one per protocol): models "
-        "scored from a predictions file, shown beside the baselines",
-    )
-    parser.add_argument(
-        "--target",
-        action="append",
-        default=[],
-        metavar="DATASET=TOLERANCE",
-        help="reproduction target per dataset, radians (default: "
-        + ", ".join(f"{d}={t}" for d, t in TARGETS.items())
-        + ")",
-    )
-    parser.add_argument(
-        "--note",
-        action="append",
-        default=[],
-        metavar="EXPERIMENT=TEXT",
-        help="why a row is as it is (e.g. why it misses the target); printed with that row",
-    )
-    parser.add_argument(
-        "--work-dir",
-        type=Path,
-        default=None,
-        help="where the evaluations (and, without --out, the page) are written (default: a new "
-        "outputs/report/<time>)",
-    )
-    parser.add_argument(
-        "--records",
-        type=Path,
-        default=None,
-        help="a folder of run records (docs/runs: the project's): the runs recorded there "
-        "are on the page without their folders, and each run this report evaluates is recorded "
-        "there (src/reporting/records.py)",
-    )
-    parser.add_argument(
-        "--readme",
-        type=Path,
-        default=None,
-        help="also put the headline table and figure between the results markers of this file",
-    )
-    return parser.parse_args(argv)
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
-    if not args.protocols:
-        raise SystemExit("error: give at least one protocol")
-    targets = dict(TARGETS)
-    for item in args.target:
-        dataset, _, value = item.partition("=")
-        try:
-            targets[dataset] = float(value)
-        except ValueError:
-            raise SystemExit(
-                f"error: --target {item!r}: expected DATASET=TOLERANCE, e.g. h36m=0.03"
-            ) from None
-    if args.readme is not None:
-        check_block(args.readme, "results")  # before hours of evaluation, not after
-    # Read before anything is written: the page and README block change the tree.
-    commit = git_commit()
-
-    paths = discover_runs(args.runs)
-    root = display_root(paths)
-    runs = [load_run(path, root) for path in paths]
-    # After the run folders: a folder given again replaces its record (and re-records it).
-    if args.records is not None:
-        given = [(record_name(r), r["path"]) for r in runs]
-        runs += [
-            r
-            for r in read_records(args.records, args.protocols)
-            if not any(record_name(r) == name and same_folder(r["path"], p) for name, p in given)
-        ]
-    # From the configs alone: a bad --note fails before evaluating.
-    groups = page_order(group_runs(runs))
-    notes = parse_notes(args.note, note_names(groups))
-    scored = scored_entries(args.scored, args.protocols)  # read before anything is evaluated
-
-    stamp = dt.datetime.now().strftime("%Y-%m-%d_%H-%M-%S")
-    if args.work_dir is None:
-        work = new_folder(PROJECT_ROOT / "outputs" / "report" / stamp).resolve()
+def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
+    """The run's best and last checkpoints on each protocol, into run["results"]."""
+    checkpoints, iterations = run["checkpoints"], run["iterations_of"]
+    name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
+    same = checkpoints["last"] == checkpoints["best"]
+    run["results"] = {"best": {}}
+    if same or (iterations["best"] is not None and iterations["best"] == iterations["last"]):
+        run["results"]["last"] = run["results"]["best"]
+        # One file for both means one was missing (find_checkpoints said which), not that the
+        # error was lowest at the end.
+        run["notes"] += [] if same else ["best = last (lowest error at the final validation)"]
     else:
-        work = args.work_dir.resolve()
-    kept = [r for g in groups for r in g.runs]
-    fresh = [r for r in kept if not r.get("recorded")]
-    for index, run in enumerate(fresh):
-        evaluate_run(run, index, args.protocols, work)
-        first = run["results"]["best"][args.protocols[0]]
-        run["missing_files"] = first["provenance"]["missing_files"]
-    datasets = sorted({g.dataset for g in groups})
-    if args.datasets is not None:
-        datasets = [d for d in args.datasets if d != "none"]
-    baselines = evaluate_baselines(datasets, args.protocols, work, commit) + scored
-    archives = Path(os.environ["MOTION_ARCHIVES"]) if os.environ.get("MOTION_ARCHIVES") else None
-    mark_archives(fresh + baselines, archives)  # a record keeps the hash it was evaluated on
-    if args.records is not None:
-        date = dt.date.today().isoformat()
-        for run in fresh:
-            print(f"recorded {run['path']} as {write_record(run, args.records, commit, date)}")
+        run["results"]["last"] = {}
+    for selection, results in run["results"].items():
+        for protocol in protocols if not results else ():
+            print(f"evaluating {run['path']} ({selection}, {protocol})", flush=True)
+            results[protocol] = evaluate(
+                [f"ckpt_path='{checkpoints[selection]}'", f"protocol={protocol}"],
+                work / f"{index:03d}_{name}_seed{run['seed']}" / f"{selection}_{protocol}",
+            )
+    run["missing_files"] = run["results"]["best"][protocols[0]]["provenance"]["missing_files"]
 
-    out = (args.out or work / "results.md").resolve()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    figure = headline_figure(groups, args.protocols[0])
-    figure_path = out.with_name(f"{out.stem}_errors.png")
-    if figure is not None:
-        figure.savefig(figure_path)
-    command = shlex.join(["python", "-m", "src.report", *(sys.argv[1:] if argv is None else argv)])
+
+def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
+    """Each baseline on each dataset and protocol: [{label, dataset, commit, results}]."""
+    baselines = []
+    for dataset in datasets:
+        for model in BASELINES:
+            entry = {"label": model, "dataset": dataset, "commit": commit, "results": {}}
+            for protocol in protocols:
+                print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
+                overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
+                result = evaluate(
+                    [*overrides, "data.allow_partial=true"],
+                    work / "baselines" / f"{model}_{dataset}_{protocol}",
+                )
+                entry["results"][protocol] = result
+                entry["missing_files"] = result["provenance"]["missing_files"]
+            baselines.append(entry)
+    return baselines
+
+
+def _list(value) -> list:
+    return [] if value is None else [value] if isinstance(value, str) else list(value)
+
+
+@hydra_entry("report")
+def main(cfg: DictConfig) -> int:
+    silence_false_warnings()  # once, not once per evaluation
+    if not (protocols := [str(p) for p in _list(cfg.protocols)]):
+        raise ConfigError("protocols=[]: give at least one protocol, e.g. protocols=[srnn]")
+    try:
+        targets = {str(d): float(t) for d, t in cfg.targets.items()}
+    except ValueError:
+        shown = OmegaConf.to_container(cfg.targets)
+        message = f"targets={shown}: each a number of radians, e.g. targets.h36m=0.03"
+        raise ConfigError(message) from None
+    readme, records = (Path(x) if x else None for x in (cfg.readme, cfg.records))
+    if readme:
+        replace_block(readme, "results")  # before hours of evaluation, not after
+    commit, work = git_commit(), Path(cfg.paths.output_dir)  # the commit before any write
+    # The command as given: each evaluation below composes a config of its own.
+    command = shlex.join(["python", "-m", "src.report", *HydraConfig.get().overrides.task])
+    work.mkdir(parents=True, exist_ok=True)
+    groups = group_runs(gather_runs(_list(cfg.runs), records, protocols))
+    notes = parse_notes([str(n) for n in _list(cfg.notes)], groups)  # before evaluating
+    scored = scored_entries([Path(p) for p in _list(cfg.scored)], protocols)
+    fresh = [r for g in groups for r in g.runs if not r.get("recorded")]
+    for index, run in enumerate(fresh):
+        evaluate_run(run, index, protocols, work)
+    datasets = sorted({g.dataset for g in groups}) if cfg.datasets is None else cfg.datasets
+    baselines = evaluate_baselines(datasets, protocols, work, commit) + scored
+    archives = os.environ.get("MOTION_ARCHIVES")  # a record keeps the hash it was evaluated on
+    mark_archives(fresh + baselines, Path(archives) if archives else None)
+    for run in fresh if records else ():
+        path = write_record(run, records, commit, dt.date.today().isoformat())
+        print(f"recorded {run['path']} as {path}")
+
+    results = Results(groups, baselines)
+    out = Path(cfg.out or work / "results.md").resolve()
+    tables = out.with_suffix("")  # docs/results.md: docs/results/<metric>_<protocol>.csv
+    tables.mkdir(parents=True, exist_ok=True)
+    for metric in ("euler", "mpjpe"):
+        for protocol in protocols:
+            csv = per_action_csv(results, protocol, metric)
+            (tables / f"{metric}_{protocol}.csv").write_text(csv)
+    names = []
+    for figure, kind in zip(figures(results, protocols[0]), ("errors", "validation"), strict=True):
+        names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
+        if figure is not None:
+            figure.savefig(out.with_name(names[-1]))
     page = build_page(
-        groups,
-        baselines,
-        args.protocols,
-        command,
-        args.budget,
-        commit,
-        targets,
-        notes,
-        figure_path.name if figure is not None else None,
+        results, protocols, command, cfg.budget, commit, targets, notes, names, tables.name
     )
     replaced = out.exists()
     out.write_text(page)
-    if args.readme is not None:
-        here = args.readme.resolve().parent
-        block = readme_block(
-            groups,
-            args.protocols[0],
-            commit,
-            targets,
-            os.path.relpath(figure_path, here) if figure is not None else None,
-            os.path.relpath(out, here),
-        )
-        replace_block(args.readme, "results", block)
-    work.mkdir(parents=True, exist_ok=True)
-    raw = {
-        "groups": [
-            {
-                "label": g.label,
-                "run_name": g.run_name,
-                "dataset": g.dataset,
-                "settings": g.settings,
-                "left_out": g.left_out,
-                "runs": g.runs,
-            }
-            for g in groups
-        ],
-        "baselines": baselines,
-    }
+    if readme:
+        here = readme.resolve().parent
+        figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
+        page = os.path.relpath(out, here)
+        block = readme_block(results, protocols[0], commit, targets, figure, page)
+        replace_block(readme, "results", block)
+    raw = [{"label": g.label, "dataset": g.dataset, "runs": g.runs} for g in groups]
+    raw = {"groups": raw, "baselines": baselines}
     (work / "report.json").write_text(json.dumps(raw, indent=1, default=str))
+    results.frame.to_csv(work / "results_long.csv", index=False)
     print(
-        f"wrote {out}{' (replacing the file that was there)' if replaced else ''}"
-        f"{f' and {figure_path.name}' if figure is not None else ''}; raw results in {work}"
+        f"wrote {out}{' (replacing the file that was there)' if replaced else ''}, its figures "
+        f"and {tables.name}/*.csv; evaluations and the long table in {work}"
     )
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -1,7 +1,7 @@
 """src.eval's work: a baseline, a trained checkpoint (tested as a MotionPredictor) or a file of
 predictions (src/scoring.py) evaluated on the protocol's test windows. `evaluate` writes the
-tables as results.{md,csv,json} into the run's folder; `read_results` reads results.json back
-(src.plot_errors, src.report).
+tables as results.{md,csv,json} into the run's folder (src/reporting/tables.py's format, which
+`read_results` there reads back for src.plot_errors and src.report).
 """
 
 from __future__ import annotations
@@ -13,41 +13,40 @@ from pathlib import Path
 import lightning as L
 from omegaconf import DictConfig
 
-from src.lit.factory import ConfigError, build_for_evaluation, build_trainer, git_commit
+from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
 from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
-from src.reporting.tables import ResultTable, results_from_metric
+from src.reporting.tables import result_table, results_from_metric, table_markdown, tables_csv
 from src.scoring import score_predictions
 
 
-def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[ResultTable]:
-    """The Euler and MPJPE tables of an evaluation on `dataset` (the data's own name, e.g.
-    "synthetic": the published numbers appear only beside results on the paper's dataset)."""
+def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
+    """The Euler and MPJPE tables (src/reporting/tables.py) of an evaluation on `dataset` (the
+    data's own name, e.g. "synthetic": published numbers stand only beside their dataset's)."""
     published, label = published_for(model_cfg.get("published"), dataset)
-    tables = []
-    for metric, title, unit in (
-        ("euler", "Euler-angle error", "rad"),
-        ("mpjpe", "Mean per-joint position error", "mm" if dm.dataset_name == "h36m" else "units"),
-    ):
-        values = results_from_metric(
-            module.last_results[metric], dm.actions, dm.frame_ms, dm.absent_actions
+    where = f"{model_cfg['name']} on {dataset} ({dm.eval_protocol} protocol, "
+    where += f"{len(dm.eval_windows)} windows)"
+    mm = "mm" if dm.dataset_name == "h36m" else "units"
+    return [
+        result_table(
+            f"{title}: {where}",
+            metric,
+            unit,
+            dm.actions,
+            module.horizons,
+            results_from_metric(
+                module.last_results[metric], dm.actions, dm.frame_ms, dm.absent_actions
+            ),
+            dm.absent_actions,
+            published if metric == "euler" else None,
+            label,
         )
-        tables.append(
-            ResultTable(
-                title=f"{title}: {model_cfg['name']} on {dataset} "
-                f"({dm.eval_protocol} protocol, {len(dm.eval_windows)} windows)",
-                metric=metric,
-                unit=unit,
-                actions=list(dm.actions),
-                horizons_ms=list(module.horizons),
-                values=values,
-                absent=dict(dm.absent_actions),
-                published=published if metric == "euler" else None,
-                published_label=label,
-            )
+        for metric, title, unit in (
+            ("euler", "Euler-angle error", "rad"),
+            ("mpjpe", "Mean per-joint position error", mm),
         )
-    return tables
+    ]
 
 
 def evaluate(cfg: DictConfig) -> dict:
@@ -80,30 +79,11 @@ def evaluate(cfg: DictConfig) -> dict:
         "commit": git_commit(),
         "wall_time_s": round(time.perf_counter() - start, 1),
     }
-    markdown = "\n\n".join(t.to_markdown() for t in tables)
+    markdown = "\n\n".join(table_markdown(t) for t in tables)
     (out_dir / "results.md").write_text(markdown + "\n")
-    # One header for both tables: a second one would be read as a row of data.
-    csv_text = "".join(t.to_csv(header=i == 0) for i, t in enumerate(tables))
-    (out_dir / "results.csv").write_text(csv_text)
-    result = {"provenance": provenance, "tables": [t.to_dict() for t in tables]}
+    (out_dir / "results.csv").write_text(tables_csv(tables))
+    result = {"provenance": provenance, "tables": tables}
     (out_dir / "results.json").write_text(json.dumps(result, indent=2))
     print(markdown)
     print(f"\nwritten to {out_dir}")
     return result
-
-
-def read_results(path: str | Path) -> dict:
-    """The parsed results.json of one `python -m src.eval` run."""
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(
-            f"results file not found: {path}. `python -m src.eval ...` writes results.json "
-            "into its run folder under outputs/eval/runs/."
-        )
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise ConfigError(f"{path} is not valid JSON: {err}") from err
-    if not isinstance(data, dict) or "tables" not in data:
-        raise ConfigError(f"{path} has no 'tables'; is it a results.json from src.eval?")
-    return data

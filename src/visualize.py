@@ -32,7 +32,7 @@ from src.lit.run_folders import nothing_left_if_refused
 from src.lit.schema import VisualizeConfig
 from src.lit.validation import validate_eval_config
 from src.metrics.kinematics import Skeleton
-from src.reporting.plots import animate, frame_strip, window_rows
+from src.plots import animate, frame_strip, window_rows
 
 log = logging.getLogger(__name__)
 register_resolvers()

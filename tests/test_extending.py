@@ -54,7 +54,7 @@ def test_the_example_model_trains_and_every_command_takes_it(tmp_path, synthetic
     from src.eval import evaluate
     from src.inference import MotionForecaster
     from src.lit.factory import build_for_evaluation
-    from src.reporting.plots import window_rows
+    from src.plots import window_rows
     from src.train import train
     from src.visualize import select_window
 
@@ -113,10 +113,15 @@ def test_the_example_model_in_a_sweep_and_the_report(tmp_path, synthetic_data_di
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     (sweep,) = (tmp_path / "train" / "multiruns").iterdir()
+    from tests.conftest import compose_config
+
     out = tmp_path / "results.md"
-    args = [str(sweep), "--out", str(out), "--protocols", "srnn", "--datasets", "none"]
-    assert report([*args, "--work-dir", str(tmp_path / "work")]) == 0
-    page = out.read_text()
+    args = [f"runs=[{sweep}]", f"out={out}", "protocols=[srnn]", "datasets=[]"]
+    assert report(compose_config("report", args, tmp_path / "work")) == 0
+    labels = [
+        line.split("|")[1].strip().rstrip("⁰¹²³⁴⁵⁶⁷⁸⁹")  # a footnote gives the settings
+        for line in out.read_text().splitlines()
+        if "| ours, best " in line
+    ]
     # Two experiments (one per hidden size), each under its short label.
-    assert "| residual_mlp_synthetic, hidden=16 |" in page, page
-    assert "| residual_mlp_synthetic, hidden=32 |" in page, page
+    assert labels == ["residual_mlp_synthetic, hidden=16", "residual_mlp_synthetic, hidden=32"]

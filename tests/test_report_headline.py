@@ -9,38 +9,53 @@ import re
 
 import pytest
 
-from src.report import main, new_folder
-from src.reporting.claims import ABLATIONS, claims, claims_section
-from src.reporting.groups import group_runs
-from src.reporting.headline import headline_figure, headline_table, page_order, readme_block
-from src.reporting.page import build_page, how_to_read, summary_table
+from src.report import main
+from src.reporting.claims import claims, claims_section
+from src.reporting.frame import Results
+from src.reporting.groups import ABLATIONS, group_runs
+from src.reporting.headline import figures, headline_table, readme_block
+from src.reporting.page import averages_table, build_page, reading
 from src.reporting.published import KNOWN_SLIPS, published_for
 from src.reporting.runs import display_root
-from src.reporting.tables import AVERAGE, ResultTable, same_set_average
-from src.reporting.verdicts import gap_lines, judge, references, slip_lines
-from tests.test_report import ABSENT, MS, fake_run, make_run, offset_result, offset_run
+from src.reporting.tables import AVERAGE, same_set_average
+from tests.test_report import (
+    ABSENT,
+    MS,
+    TARGETS,
+    cells,
+    fake_run,
+    make_run,
+    offset_result,
+    offset_run,
+    report_cfg,
+    row_of,
+    tables,
+)
 
 EVALUATED = [
-    "walking", "eating", "smoking", "greeting", "phoning", "posing", "purchases", "sitting",
-    "takingphoto", "walkingdog", "walkingtogether",
-]  # fmt: skip
+    "walking",
+    "eating",
+    "smoking",
+    "greeting",
+    "phoning",
+    "posing",
+    "purchases",
+    "sitting",
+    "takingphoto",
+    "walkingdog",
+    "walkingtogether",
+]
 GRU = {"h36m": {"paper": "martinez2017", "method": "residual_sup_ma"}}
 
 
 def gru_result(delta: float) -> dict:
     """A GRU evaluation as src.eval stores it (Martinez et al.'s values beside ours), where
     every evaluated action is Li et al.'s RRNN value + delta (1.0 where RRNN has none)."""
-    published, label = published_for(GRU, "h36m")
+    published, _ = published_for(GRU, "h36m")
     rrnn, _ = published_for({"paper": "li2018", "method": "rrnn"}, "h36m")
     actions = [a for a in published if a != AVERAGE]
-    values = {a: {ms: rrnn[a].get(ms, 1.0 - delta) + delta for ms in MS} for a in EVALUATED}
-    tables = [
-        ResultTable(
-            "t", m, u, actions, MS, values, ABSENT, published if m == "euler" else None, label
-        ).to_dict()
-        for m, u in (("euler", "rad"), ("mpjpe", "mm"))
-    ]
-    return {"provenance": {"missing_files": []}, "tables": tables}
+    values = lambda a, ms: rrnn[a].get(ms, 1.0 - delta) + delta  # noqa: E731
+    return {"provenance": {"missing_files": []}, "tables": tables(values, actions, ABSENT, ref=GRU)}
 
 
 def gru_run(seed: int, delta: float) -> dict:
@@ -73,48 +88,60 @@ def lead_like_runs() -> list[dict]:
 # --- several references per row: the GRU against Martinez et al. and Li et al.'s RRNN -------
 
 
+def head_of(runs, targets=TARGETS):
+    """(results, headline table, footnotes, why-rows-miss lines) of `runs`."""
+    results = Results(group_runs(runs))
+    return (results, *headline_table(results, "srnn", targets, "#ablations"))
+
+
 def test_the_gru_has_both_published_sources_each_with_its_same_set_gap():
-    (group,) = group_runs([gru_run(1, 0.0)])
-    refs = references(group)
+    results, head, _, _ = head_of([gru_run(1, 0.0)])
+    refs = results.references(results.groups[0])
     assert [r.key for r in refs] == ["martinez2017 residual_sup_ma", "li2018 rrnn"]
     rrnn_same = same_set_average(refs[1].published, EVALUATED, MS)
     martinez_same = same_set_average(refs[0].published, EVALUATED, MS)
     # The issue's numbers: RRNN over these 11 actions .430 .741 1.119 1.260 1.820.
     assert [round(rrnn_same[ms], 3) for ms in (80, 160, 320, 400, 1000)] == [
-        0.43, 0.741, 1.119, 1.26, 1.82,
-    ]  # fmt: skip
-    lines = gap_lines(group, "best", "srnn", 0.03)
-    (martinez,) = [line for line in lines if "(martinez2017 residual_sup_ma)" in line]
-    (rrnn,) = [line for line in lines if "(li2018 rrnn)" in line]
-    assert (
-        f"80 ms {0.43 - round(martinez_same[80], 2):+.2f}" in martinez and "NOT within" in martinez
+        0.43,
+        0.741,
+        1.119,
+        1.26,
+        1.82,
+    ]
+    name = "Martinez et al. residual_sup_ma, 11 actions incl. slips (smoking, phoning)"
+    martinez = row_of(head, "", "", "", name)
+    assert martinez[5].endswith(
+        f"({0.43 - round(martinez_same[80], 2):+.2f}, {0.43 - round(martinez_same[80], 2):+.2f})"
     )
-    assert "80 ms +0.00" in rrnn and "1000 ms +0.00" in rrnn and "within the target" in rrnn
-    assert "NOT" not in rrnn
+    assert martinez[-1].startswith("beyond 0.03")
+    rrnn = row_of(head, "", "", "", "Li et al. rrnn, 11 actions")
+    assert rrnn[5].endswith("(+0.00, +0.00)") and rrnn[10].endswith("(+0.00, +0.00)")
+    assert rrnn[-1] == "within 0.03"
     # Both in the averages table too, each flagged for its own slips.
-    table = summary_table([group], [], "euler", "srnn")
+    table = averages_table(results, "srnn", "euler", published=True)
     assert "published (martinez2017 residual_sup_ma), same 11 actions (includes slips" in table
-    assert "published (li2018 rrnn), same 11 actions |" in table
+    assert "published (li2018 rrnn), same 11 actions " in table
 
 
 def test_the_verdict_names_the_reference_it_was_judged_against_and_why():
-    groups = group_runs([gru_run(s, d) for s, d in ((1, 0.0), (2, 0.004), (3, -0.003))])
-    verdict = judge(groups[0], "srnn", 0.03)
+    results, head, notes, _ = head_of(
+        [gru_run(s, d) for s, d in ((1, 0.0), (2, 0.004), (3, -0.003))]
+    )
+    verdict = results.judge(results.groups[0], "srnn", 0.03)
     assert (verdict.status, verdict.reference.key) == ("reproduces", "li2018 rrnn")
     assert "martinez2017 residual_sup_ma" not in verdict.why
     assert "Martinez et al. residual_sup_ma's same-set average includes slips" in verdict.why
     assert "(smoking, phoning)" in verdict.why
-    block = readme_block(groups, "srnn", "abc1234")
-    (best,) = [line for line in block.splitlines() if "| ours, best |" in line]
-    assert best.endswith("| **reproduces**, judged against Li et al. rrnn¹ |")
-    (footnote,) = [line for line in block.splitlines() if line.startswith("- ¹")]
-    assert "retraining of the same model" in footnote and "smoking, phoning" in footnote
+    assert row_of(head, "martinez2017_res_sup")[-1] == (
+        "**reproduces**, judged against Li et al. rrnn¹"
+    )
+    assert "retraining of the same model" in notes[0] and "smoking, phoning" in notes[0]
     # Against Martinez et al.'s printed rows it misses, and the row says where.
-    (martinez,) = [line for line in block.splitlines() if "|  |  | Martinez et al." in line]
-    assert martinez.endswith("| beyond 0.03 at 80, 160, 320, 400 ms |")
+    (martinez,) = [r for r in cells(head) if r[3].startswith("Martinez et al.")]
+    assert martinez[-1] == "beyond 0.03 at 80, 160, 320, 400 ms"
     # A model with one reference is judged against it, with no reason needed.
-    (li,) = group_runs([seeded(0.0, 1)])
-    assert judge(li, "srnn", 0.03).why == "the only published source"
+    single = Results(group_runs([seeded(0.0, 1)]))
+    assert single.judge(single.groups[0], "srnn", 0.03).why == ("the only published source")
 
 
 def test_without_a_slip_the_models_own_paper_is_the_judge():
@@ -126,8 +153,8 @@ def test_without_a_slip_the_models_own_paper_is_the_judge():
             for action in ("smoking", "phoning"):
                 table["values"].pop(action)
                 table["absent"][action] = "not in this copy"
-    (group,) = group_runs([run])
-    verdict = judge(group, "srnn", 0.03)
+    results = Results(group_runs([run]))
+    verdict = results.judge(results.groups[0], "srnn", 0.03)
     assert verdict.reference.key == "martinez2017 residual_sup_ma"
     assert verdict.why == "the model's own paper" and verdict.status == "misses"
 
@@ -146,24 +173,18 @@ def test_martinez_phoning_is_a_known_slip_flagged_where_it_enters_an_average():
         published, _ = published_for({"paper": paper, "method": method}, "h36m")
         assert " ".join(f"{published['phoning'][ms]:.2f}" for ms in (80, 160, 320, 400)) == row
         assert row in why
-    (group,) = group_runs([gru_run(1, 0.0)])
-    (line,) = slip_lines(group, "srnn")
-    assert "(martinez2017 residual_sup_ma) of smoking, phoning" in line
-    block = readme_block([group], "srnn", "abc1234")
-    assert "Martinez et al. residual_sup_ma, 11 actions incl. slips (smoking, phoning) |" in block
-    assert "Li et al. rrnn, 11 actions |" in block  # RRNN's average has no slip
+    run = gru_run(1, 0.0)
+    page = build_page(Results(group_runs([run])), ["srnn"], "cmd", None, "abc", TARGETS)
+    assert "(martinez2017 residual_sup_ma) of smoking, phoning are slips of the paper" in page
+    _, head, _, _ = head_of([run])
+    assert "Martinez et al. residual_sup_ma, 11 actions incl. slips (smoking, phoning) " in head
+    assert "Li et al. rrnn, 11 actions " in head  # RRNN's average has no slip
     # Without phoning among the evaluated actions, the flag names smoking only.
-    assert "incl. slips (smoking) |" in headline_without(group, "phoning")
-
-
-def headline_without(group, action: str) -> str:
-    group = copy.deepcopy(group)
-    for run in group.runs:
-        for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
-            for table in result["tables"]:
-                table["values"].pop(action)
-                table["absent"][action] = "not in this copy"
-    return readme_block([group], "srnn", "abc1234")
+    for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
+        for table in result["tables"]:
+            table["values"].pop("phoning")
+            table["absent"]["phoning"] = "not in this copy"
+    assert "incl. slips (smoking) " in head_of([run])[1]
 
 
 # --- the headline -----------------------------------------------------------------------------
@@ -177,54 +198,74 @@ def paragraphs(text: str) -> list[str]:
 
 
 def test_headline_first_and_readme_block_short_on_the_leads_runs(tmp_path):
-    groups = group_runs(lead_like_runs())
-    figure = headline_figure(groups, "srnn")
+    results = Results(group_runs(lead_like_runs()))
+    horizon, _ = figures(results, "srnn")
     page = build_page(
-        groups, [], ["srnn", "random"], "python -m src.report ...", "b" * 2000, "abc1234",
-        figure="results_errors.png",
-    )  # fmt: skip
-    lines = page.splitlines()
-    first_table = next(
-        k for k, line in enumerate(lines) if line.startswith("| ") and " ms |" in line
+        results,
+        ["srnn", "random"],
+        "python -m src.report ...",
+        "b" * 2000,
+        "abc1234",
+        TARGETS,
+        figures=("results_errors.png", None),
+        tables="results",
     )
+    lines = page.splitlines()
+    first_table = next(k for k, line in enumerate(lines) if line.startswith("| experiment"))
     assert first_table < 30
-    header = lines[first_table]
-    assert header.startswith("| experiment | data | row | n | 80 ms |") and "| verdict |" in header
+    header = [c.strip() for c in lines[first_table].strip("|").split("|")]
+    assert header[:6] == ["experiment", "data", "iterations", "row", "n", "80 ms"]
+    assert header[-1] == "verdict"
     # One short label per experiment, the ablations in their own section.
-    labels = [
-        line.split(" | ")[0][2:] for line in lines[first_table + 2 :] if "| ours, best" in line
-    ]
-    assert labels[:3] == ["li2018_h36m", "li2018_cmu", "martinez2017_res_sup"]
-    assert len(labels) == 3
+    head = "\n".join(lines[first_table : lines.index("", first_table)])
+    labels = [r[0] for r in cells(head) if r[3] == "ours, best"]
+    assert labels == ["li2018_h36m", "martinez2017_res_sup", "li2018_cmu"]
     assert "![Average Euler error against horizon, ours and published](results_errors.png)" in page
-    # Then, in that order: provenance, per-action tables, the 256 windows, MPJPE, the command.
+    # Then, in that order: the budget, the ablations, provenance, the averages of each protocol
+    # and metric, the per-action tables (CSV files), the command.
     order = [
         "**Budget.**",
         "## Ablations",
         "## Provenance",
-        "## Per-action tables: 8 windows",
-        "## Other protocol: 256 windows",
-        "## MPJPE",
+        "## Averages: Euler-angle error (radians), 8 windows",
+        "## Averages: Euler-angle error (radians), 256 windows",
+        "## Averages: MPJPE",
+        "## Per-action tables",
         "## Command",
     ]
     assert [page.index(h) for h in order] == sorted(page.index(h) for h in order)
+    assert "(results/euler_random.csv)" in page and "(results/mpjpe_srnn.csv)" in page
     assert page.rstrip().endswith("`python -m src.report ...`")
+    assert len(lines) <= 400
 
-    block = readme_block(groups, "srnn", "abc1234", None, "docs/results_errors.png")
+    block = readme_block(results, "srnn", "abc1234", TARGETS, "docs/results_errors.png")
     assert len(block.splitlines()) <= 25
     assert all(len(p) <= 300 for p in paragraphs(block)), [len(p) for p in paragraphs(block)]
     assert "![Average Euler error against horizon" in block and "b" * 50 not in block
     assert "[docs/results.md](docs/results.md)" in block and "docs/results.md#ablations" in block
     # The figure: one panel per dataset.
-    assert [ax.get_title().split(":")[0] for ax in figure.axes] == ["h36m", "cmu"]
-    figure.savefig(tmp_path / "f.png")
+    assert [ax.get_title().split(":")[0] for ax in horizon.axes] == ["h36m", "cmu"]
+    horizon.savefig(tmp_path / "f.png")
     assert (tmp_path / "f.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_zero_velocity_yardstick_is_a_row_on_the_same_actions():
+    """Issue 39: the zero-velocity baseline, evaluated by the report on the same data, is the
+    first yardstick a reader asks for: its average over the same actions stands in the
+    headline after its dataset's experiments."""
+    zero = {"label": "zero_velocity", "dataset": "h36m", "results": {"srnn": offset_result(0.3)}}
+    results = Results(group_runs([seeded(0.0, 1)]), [zero])
+    head, _, _ = headline_table(results, "srnn", TARGETS, None)
+    row = cells(head)[-1]
+    assert row[:5] == ["zero-velocity", "h36m", "-", "baseline, 11 actions", "-"]
+    published, _ = published_for({"paper": "li2018", "method": "conv_s2s"}, "h36m")
+    expected = sum(published[a][1000] for a in EVALUATED) / 11 + 0.3
+    assert row[10] == f"{expected:.2f}"
 
 
 @pytest.mark.parametrize("n, rows", [(1, "1 trained row:"), (2, "2 trained rows:")])
 def test_the_headline_counts_the_trained_ablations(n, rows):
-    groups = group_runs([seeded(0.0, 1)] + [seeded(0.0, 1, name) for name in ABLATIONS[:n]])
-    table, notes = headline_table(groups, "srnn", {"h36m": 0.03}, "#ablations")
+    _, _, notes, _ = head_of([seeded(0.0, 1)] + [seeded(0.0, 1, name) for name in ABLATIONS[:n]])
     (note,) = [line for line in notes if "ablations" in line]
     assert f"Li et al.'s ablations ({rows} Tables 5 and 6, Figure 4)" in note
 
@@ -238,27 +279,26 @@ def test_the_page_lists_h36m_then_cmu_then_the_ablations():
         seeded(0.0, 2),
         gru_run(1, 0.0),
     ]
-    groups = page_order(group_runs(found))
+    results = Results(group_runs(found))
     order = ["li2018_h36m", "martinez2017_res_sup", "li2018_cmu", ABLATIONS[0]]
-    assert [g.label for g in groups] == order
-    (seeds,) = [line for line in how_to_read(groups) if line.startswith("**Seeds.**")]
-    assert seeds.startswith("**Seeds.** li2018_h36m (h36m): 2 seeds (1, 2); martinez2017_res_sup")
-    rows = [r for r in readme_block(groups, "srnn", "abc").splitlines() if "| ours, best |" in r]
-    assert [r.split(" | ")[0].strip("| ") for r in rows] == order[:3]
+    assert [g.label for g in results.groups] == order
+    (seeds,) = [line for line in reading(results) if line.startswith("**Seeds.**")]
+    assert seeds.startswith(
+        "**Seeds.** li2018_h36m (h36m, 4,000 iterations): 2 seeds (1, 2); martinez2017_res_sup"
+    )
+    head, _, _ = headline_table(results, "srnn", TARGETS, None)
+    assert [r[0] for r in cells(head) if r[3] == "ours, best"] == order[:3]
 
 
 def test_settings_that_tell_rows_apart_go_to_a_footnote():
     switched = seeded(0.0, 1)
     switched["config"]["adversarial"]["reference_fake_slot"] = True
-    groups = group_runs([seeded(0.0, 1), switched])
-    block = readme_block(groups, "srnn", "abc1234")
-    rows = [line for line in block.splitlines() if "| ours, best |" in line]
-    assert rows[0].startswith("| li2018_h36m¹ | h36m |")
-    assert rows[1].startswith("| li2018_h36m, reference-code switches² | h36m |")
-    assert "- ¹ li2018_h36m: adversarial.reference_fake_slot=False." in block
-    assert (
-        "- ² li2018_h36m, reference-code switches: adversarial.reference_fake_slot=True." in block
-    )
+    _, head, notes, _ = head_of([seeded(0.0, 1), switched])
+    rows = [r for r in cells(head) if r[3] == "ours, best"]
+    assert rows[0][:2] == ["li2018_h36m¹", "h36m"]
+    assert rows[1][:2] == ["li2018_h36m, reference-code switches²", "h36m"]
+    assert "¹ li2018_h36m: adversarial.reference_fake_slot=False." in notes
+    assert "² li2018_h36m, reference-code switches: adversarial.reference_fake_slot=True." in notes
 
 
 # --- identical runs are one seed --------------------------------------------------------------
@@ -274,8 +314,9 @@ def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
     (line,) = group.left_out
     assert "seed 1234: `multiruns/2026-01-01/0_li2018_h36m_seed1234` has the same" in line
     assert f"`{single['path']}`, which was kept (given first)" in line
-    page = build_page([group], [], ["srnn"], "cmd", None, "abc1234")
-    assert "li2018_h36m (h36m): 2 seeds (2, 1234)" in page and "(1234, 1234)" not in page
+    page = build_page(Results([group]), ["srnn"], "cmd", None, "abc1234", TARGETS)
+    assert "li2018_h36m (h36m, 4,000 iterations): 2 seeds (2, 1234)" in page
+    assert "(1234, 1234)" not in page
     assert "**Runs counted once.** seed 1234:" in page
     # Of a run and its unfinished earlier copy, the one that trained longer is kept.
     short = copy.deepcopy(single)
@@ -334,24 +375,19 @@ def test_the_page_goes_to_the_commands_folder_unless_out_is_given(tmp_path, monk
 
     monkeypatch.setattr("src.report.evaluate_run", evaluate_run)
     run = make_run(tmp_path / "runs" / "li2018_h36m" / "t", summary={"iterations": 4000})
-    args = [str(run), "--protocols", "srnn", "--datasets", "none", "--budget", "b"]
-    assert main([*args, "--work-dir", str(tmp_path / "work")]) == 0
+    args = [f"runs=[{run}]", "protocols=[srnn]", "datasets=[]", "budget=b"]
+    assert main(report_cfg(tmp_path, *args)) == 0
     assert shipped.read_bytes() == before
     page = (tmp_path / "work" / "results.md").read_text()
     assert (tmp_path / "work" / "results_errors.png").is_file()
+    assert (tmp_path / "work" / "results" / "euler_srnn.csv").is_file()
     # Run folders are named relative to their common folder, not as absolute paths.
     assert "`li2018_h36m/t`" in page and str(tmp_path) not in page.split("## Command")[0]
-    # --out names the file; the figure goes beside it.
+    # out= names the file; the figures and the CSVs go beside it.
     out = tmp_path / "site" / "page.md"
-    assert main([*args, "--work-dir", str(tmp_path / "w2"), "--out", str(out)]) == 0
+    assert main(report_cfg(tmp_path, *args, f"out={out}", work="w2")) == 0
     assert out.is_file() and (tmp_path / "site" / "page_errors.png").is_file()
-    # Without --work-dir, each report gets a new folder of its own.
-    base = tmp_path / "report" / "2026-01-01_00-00-00"
-    assert [new_folder(base).name for _ in range(3)] == [
-        "2026-01-01_00-00-00",
-        "2026-01-01_00-00-00-1",
-        "2026-01-01_00-00-00-2",
-    ]
+    assert (tmp_path / "site" / "page" / "mpjpe_srnn.csv").is_file()
 
 
 def test_run_folders_are_shown_relative_to_their_common_folder(tmp_path):
@@ -376,7 +412,29 @@ def ablation(name: str, delta: float) -> dict:
 
 
 def claims_page(runs) -> str:
-    return "\n".join(claims_section(group_runs(runs), ["srnn", "random"], "Ablations"))
+    return "\n".join(claims_section(Results(group_runs(runs)), ["srnn", "random"], "Ablations"))
+
+
+def claim_rows(text: str) -> list[list[str]]:
+    """Every table row of the section, as stripped cells."""
+    return [
+        [c.strip() for c in line.strip("|").split("|")]
+        for line in text.splitlines()
+        if line.startswith("|") and not line.startswith("|:")
+    ]
+
+
+def pair_rows(text: str, start: str) -> list[list[str]]:
+    """The rows of the pair whose first cell starts with `start`, with their continuation."""
+    rows, found = [], False
+    for row in claim_rows(text):
+        if row[0].startswith(start):
+            found = True
+        elif row[0]:
+            found = False
+        if found:
+            rows.append(row)
+    return rows
 
 
 def test_each_claim_is_stated_with_the_papers_numbers_and_judged_against_the_seed_spread():
@@ -389,26 +447,38 @@ def test_each_claim_is_stated_with_the_papers_numbers_and_judged_against_the_see
     }
     text = claims_page(full + [ablation(n, d) for n, d in effects.items()])
     assert "0.41 0.72 1.05 1.17 1.88 against 0.38 0.68 1.01 1.13 1.77" in text  # Table 5
-    assert "| no_long_term − li2018_h36m, paper | - | - | +0.03 | +0.04 |" in text
+    paper = next(r for r in claim_rows(text) if r[0] == "no_long_term − li2018_h36m, paper")
+    assert paper[1:5] == ["-", "-", "+0.03", "+0.04"]
     rows = {
-        name: [line for line in text.splitlines() if re.match(rf"\| {name} − li2018_h36m \(", line)]
+        name: pair_rows(text, f"{name} − li2018_h36m (")
         for name in ("no_long_term", "kernel_4x4", "kernel_7x2")
     }
-    assert rows["no_long_term"][0].startswith(
-        "| no_long_term − li2018_h36m (1 seed and 3 seeds) | 8 windows | best | +0.05 |"
+    first = rows["no_long_term"][0]
+    assert first[:4] == [
+        "no_long_term − li2018_h36m (1 seed and 3 seeds)",
+        "8 windows",
+        "best",
+        "+0.05",
+    ]
+    assert first[-1] == "agrees, beyond the seed spread"
+    assert "(+0.01)" in rows["kernel_4x4"][0] and rows["kernel_4x4"][0][-1].endswith(
+        "(within the spread)"
     )
-    assert rows["no_long_term"][0].endswith("| agrees, beyond the seed spread |")
-    assert "| (+0.01) |" in rows["kernel_4x4"][0]
-    assert rows["kernel_4x4"][0].endswith("(within the spread) |")
-    assert (
+    assert rows["kernel_7x2"][0][-1] == (
         "disagrees: opposite beyond the spread at 80, 160, 320, 400, 1000 ms"
-        in (rows["kernel_7x2"][0])
     )
     # Both protocols, both checkpoints: 4 rows a pair.
-    assert "| 256 windows | last |" in text
-    assert "| seed spread of li2018_h36m | 8 windows | best | 0.02 |" in text
-    # Claims whose runs were not trained say so.
-    assert "not trained: li2018_h36m_C5" in text
+    assert [r[1:3] for r in rows["kernel_7x2"]] == [
+        ["8 windows", "best"],
+        ["8 windows", "last"],
+        ["256 windows", "best"],
+        ["256 windows", "last"],
+    ]
+    spread = next(r for r in claim_rows(text) if r[0] == "seed spread of li2018_h36m")
+    assert spread[1:4] == ["8 windows", "best", "0.02"]
+    # Only the claims with a trained pair are shown: the Figure 4 ones are left out.
+    assert "### The 2x7 kernel (Table 6)" in text and "Figure 4" not in text.split("##")[2]
+    assert "not trained" not in text
 
 
 def test_c20_is_li2018_h36m_under_another_name():
@@ -420,12 +490,16 @@ def test_c20_is_li2018_h36m_under_another_name():
     assert "li2018_h36m_C20 has li2018_h36m's configuration" in text
     assert "averages differ by at most 0.0e+00 rad (identical)" in text
     # C = 20 with the regulariser is li2018_h36m's mean over its 3 seeds.
-    assert "| C20_no_adv − C20 (1 seed and 3 seeds) | 8 windows | best |" in text
+    (row, *_) = pair_rows(text, "C20_no_adv − C20 (")
+    assert row[:3] == ["C20_no_adv − C20 (1 seed and 3 seeds)", "8 windows", "best"]
     # A C20 run with another budget stands on its own.
     c20["config"]["iterations"] = 2000
     text = claims_page([*full, c20, no_adv])
     assert "li2018_h36m_C20 differs from li2018_h36m in iterations 2000 vs 4000" in text
-    assert "| C20_no_adv − C20 (1 seed and 1 seed) |" in text
+    assert pair_rows(text, "C20_no_adv − C20 (")[0][0] == "C20_no_adv − C20 (1 seed and 1 seed)"
+    # The other pair of the claim was not trained, and the row says so.
+    (untrained,) = pair_rows(text, "C10_no_adv − C10")
+    assert untrained[-1] == "not trained: li2018_h36m_C10_no_adv, li2018_h36m_C10"
 
 
 def test_one_seed_of_li2018_h36m_cannot_judge_a_difference():
@@ -438,35 +512,35 @@ def test_one_seed_of_li2018_h36m_cannot_judge_a_difference():
 def test_a_difference_printed_as_zero_is_not_counted_as_a_direction(delta):
     # Seen with real runs: +0.00 at every horizon, yet "same direction at 3 of 5".
     text = claims_page([seeded(0.0, 1), ablation("li2018_h36m_no_long_term", delta)])
-    start = "| no_long_term − li2018_h36m ("
-    row = next(line for line in text.splitlines() if line.startswith(start))
-    assert "| 8 windows | best | +0.00 | +0.00 |" in row
-    assert row.endswith(
-        "| same direction at 0 of 5, 0.00 at 80, 160, 320, 400, 1000 ms "
-        "(no seed spread to judge by) |"
+    row = pair_rows(text, "no_long_term − li2018_h36m (")[0]
+    assert row[1:5] == ["8 windows", "best", "+0.00", "+0.00"]
+    assert row[-1] == (
+        "same direction at 0 of 5, 0.00 at 80, 160, 320, 400, 1000 ms (no seed spread to judge by)"
     )
 
 
-def test_before_any_ablation_is_trained_the_claims_are_listed_as_unchecked():
-    full = [seeded(d, s) for s, d in ((1, 0.0), (2, 0.01))]
-    text = claims_page(full)
-    assert text.startswith("## Ablations")
-    for claim in claims():
-        assert f"### {claim.title}" in text
-    assert "| no_long_term − li2018_h36m, paper | - | - | +0.03 | +0.04 |" in text  # Table 5
-    assert "not trained: li2018_h36m_no_long_term |" in text
-    assert "not trained: li2018_h36m_C20_no_adv |" in text
-    # Without li2018_h36m there is nothing to compare with: no section (a CMU-only page).
+def test_no_ablation_section_before_an_ablation_is_trained():
+    """A page of li2018_h36m alone used to print every claim with empty rows."""
+    assert claims_page([seeded(d, s) for s, d in ((1, 0.0), (2, 0.01))]) == ""
+    # Without li2018_h36m there is nothing to compare with either (a CMU-only page).
     assert claims_page([seeded(0.0, 1, "li2018_cmu", "cmu", absent=[])]) == ""
+    # C = 5 alone has no pair to be compared in: still no section.
+    assert claims_page([seeded(0.0, 1), ablation("li2018_h36m_C5", 0.01)]) == ""
+    text = claims_page(
+        [seeded(0.0, 1), *(ablation(f"li2018_h36m_{c}", 0.01) for c in ("C5", "C10"))]
+    )
+    assert [line for line in text.splitlines() if line.startswith("### ")] == [
+        "### Short-term window C = 5 against 10 (Figure 4, middle)",
+        "### Short-term window C = 10 against 20 (Figure 4, middle)",
+    ]
+    (untrained,) = pair_rows(text, "C5_no_adv − C10_no_adv")
+    assert untrained[-1] == "not trained: li2018_h36m_C5_no_adv, li2018_h36m_C10_no_adv"
+    assert {c.title for c in claims()} >= {"The long-term encoder (Table 5)"}
 
 
 @pytest.mark.parametrize("delta, verdict", [(0.05, "disagrees"), (0.0, "agrees")])
 def test_no_gain_from_c10_to_c20(delta, verdict):
     full = [seeded(d, s) for s, d in ((1, 0.0), (2, 0.01), (3, -0.01))]
     text = claims_page([*full, ablation("li2018_h36m_C10", delta)])
-    (row,) = [
-        line
-        for line in text.splitlines()
-        if line.startswith("| C10 − C20 (") and "| 8 windows | best |" in line
-    ]
-    assert row.split(" | ")[-1].startswith(verdict)
+    row = pair_rows(text, "C10 − C20 (")[0]
+    assert row[1:3] == ["8 windows", "best"] and row[-1].startswith(verdict)

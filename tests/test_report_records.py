@@ -1,4 +1,4 @@
-"""Run records (`src.report --records`): a page rebuilt from the records of its runs, without
+"""Run records (`src.report records=DIR`): a page rebuilt from the records of its runs, without
 their folders, is the page built from the runs; a new run joins the recorded ones and is the
 only one evaluated; the same run given again counts once and replaces its record; records name
 no machine's paths; a bad record is refused naming the file and the fix. The evaluations are
@@ -10,7 +10,14 @@ import re
 import pytest
 
 from src.report import main
-from tests.test_report import make_run, offset_result
+from tests.test_report import (
+    cells,
+    headline_in,
+    make_run,
+    offset_result,
+    refusal,
+    report_cfg,
+)
 
 
 @pytest.fixture
@@ -39,19 +46,38 @@ def records(tmp_path):
     return folder
 
 
-def report(tmp_path, *args) -> str:
-    """Run src.report with the test's fixed options; returns the page."""
-    out = tmp_path / f"page{len(list(tmp_path.glob('page*')))}" / "results.md"
-    common = ["--protocols", "srnn", "--datasets", "none", "--budget", "b", "--out", str(out)]
-    assert main([*map(str, args), *common, "--work-dir", str(tmp_path / "work")]) == 0
+def report(tmp_path, *runs, records=None) -> str:
+    """Run src.report on `runs` with the test's fixed options; returns the page."""
+    k = len(list(tmp_path.glob("page*")))
+    out = tmp_path / f"page{k}" / "results.md"
+    args = [
+        f"runs=[{','.join(map(str, runs))}]",
+        "protocols=[srnn]",
+        "datasets=[]",
+        "budget=b",
+        f"out={out}",
+    ] + ([f"records={records}"] if records else [])
+    assert main(report_cfg(tmp_path, *args, work=f"work{k}")) == 0
     return out.read_text()
 
 
 def without_record_notes(page: str) -> str:
-    """The page less its command line and the provenance notes that name records."""
+    """The page less its command line and the provenance notes that name records, its tables
+    without their padding."""
     body = page.split("## Command")[0]
-    note = r"record \S+: evaluated at \S+ on \S+"
-    return re.sub(rf"\| {note} \|", "| - |", re.sub(f"; {note}", "", body))
+    lines = [
+        "|".join(c.strip() for c in line.split("|")) if line.startswith("|") else line
+        for line in body.splitlines()
+        if not line.startswith("|:")
+    ]
+    note = r"record [^\s|]+: evaluated at [^\s|]+ on [^\s|]+"
+    return re.sub(rf"\|{note}\|", "|-|", re.sub(f"; {note}", "", "\n".join(lines)))
+
+
+def seeds(page: str) -> list[tuple[str, str]]:
+    """(experiment, seed) of each provenance row."""
+    table = page.split("## Provenance")[1].split("\n\n")[1]
+    return [(r[0], r[1]) for r in cells(table)]
 
 
 def seed_run(tmp_path, seed: int, run_name="li2018_h36m"):
@@ -61,12 +87,12 @@ def seed_run(tmp_path, seed: int, run_name="li2018_h36m"):
 
 def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evaluations, records):
     runs = [seed_run(tmp_path, 1), seed_run(tmp_path, 2)]
-    from_runs = report(tmp_path, *runs, "--records", records)
+    from_runs = report(tmp_path, *runs, records=records)
     assert len(evaluations) == 2 and len(list(records.glob("*.json"))) == 2
-    from_records = report(tmp_path, "--records", records)
+    from_records = report(tmp_path, records=records)
     assert len(evaluations) == 2  # nothing evaluated again
     assert without_record_notes(from_records) == without_record_notes(from_runs)
-    assert "| li2018_h36m | 1 |" in from_records and "| li2018_h36m | 2 |" in from_records
+    assert seeds(from_records) == [("li2018_h36m", "1"), ("li2018_h36m", "2")]
     # The page says which rows came from a record, and when they were evaluated.
     assert from_records.count("record li2018_h36m_seed") == 2
     assert "record li2018_h36m_seed" not in from_runs
@@ -75,38 +101,38 @@ def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evalu
 def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(
     tmp_path, evaluations, records
 ):
-    report(tmp_path, seed_run(tmp_path, 1), "--records", records)
+    report(tmp_path, seed_run(tmp_path, 1), records=records)
     (first,) = records.glob("*.json")
     before = first.read_bytes()
-    page = report(tmp_path, seed_run(tmp_path, 2), "--records", records)
+    page = report(tmp_path, seed_run(tmp_path, 2), records=records)
     assert evaluations == ["li2018_h36m_s1/t", "li2018_h36m_s2/t"]
     assert first.read_bytes() == before and len(list(records.glob("*.json"))) == 2
     # Both seeds are on the page: seed 1 from its record, seed 2 from its folder.
-    assert "| li2018_h36m | 1 |" in page and "| li2018_h36m | 2 |" in page
+    assert seeds(page) == [("li2018_h36m", "1"), ("li2018_h36m", "2")]
 
 
 def test_the_same_run_given_again_counts_once_and_replaces_its_record(
     tmp_path, evaluations, records
 ):
     run = seed_run(tmp_path, 1)
-    report(tmp_path, run, "--records", records)
-    page = report(tmp_path, run, "--records", records)
+    report(tmp_path, run, records=records)
+    page = report(tmp_path, run, records=records)
     assert len(evaluations) == 2  # the folder given wins over its record, and is evaluated
     assert len(list(records.glob("*.json"))) == 1
-    assert page.count("| li2018_h36m | 1 |") == 1
+    assert seeds(page) == [("li2018_h36m", "1")]
     assert "same configuration and seed" not in page  # not a copy of itself
     # Given beside a run from elsewhere, it shows under a longer path: still its own record.
     other = seed_run(tmp_path / "elsewhere", 2)
-    page = report(tmp_path, run, other, "--records", records)
+    page = report(tmp_path, run, other, records=records)
     assert "`runs/li2018_h36m_s1/t`" in page and "same configuration and seed" not in page
-    assert page.count("| li2018_h36m | 1 |") == 1 and len(list(records.glob("*.json"))) == 2
+    assert seeds(page).count(("li2018_h36m", "1")) == 1 and len(list(records.glob("*.json"))) == 2
     # Another experiment of the same seed is another record, not a replacement.
-    report(tmp_path, seed_run(tmp_path, 1, "li2018_h36m_C10"), "--records", records)
+    report(tmp_path, seed_run(tmp_path, 1, "li2018_h36m_C10"), records=records)
     assert len(list(records.glob("*.json"))) == 3
 
 
 def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluations, records):
-    report(tmp_path, seed_run(tmp_path, 1), "--records", records)
+    report(tmp_path, seed_run(tmp_path, 1), records=records)
     (record,) = records.glob("*.json")
     text = record.read_text()
     assert str(tmp_path) not in text
@@ -125,7 +151,7 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     best = first / "checkpoints" / "best-epoch001.ckpt"
     summary = {"iterations": 4000, "best_checkpoint": str(best)}
     make_run(runs / "t2", summary=summary, ckpt_path=str(first / "checkpoints" / "last.ckpt"))
-    page = report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", "--records", records)
+    page = report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", records=records)
     # The stopped segment is named as the resumed run's, not as a copy of it.
     assert "`li2018_h36m/t1` (4,000 iterations) is an earlier segment of the resumed run" in page
     assert "same configuration" not in page
@@ -140,7 +166,7 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     best.parent.mkdir(parents=True)
     best.touch()
     moved = make_run(tmp_path / "b" / "li2018_h36m" / "t3", summary={"best_checkpoint": str(best)})
-    report(tmp_path, moved, "--records", records)
+    report(tmp_path, moved, records=records)
     (record,) = records.glob("*.json")
     assert str(tmp_path) not in record.read_text()
     prov = json.loads(record.read_text())["results"]["best"]["srnn"]["provenance"]
@@ -153,30 +179,26 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
         ("{not json", "is not valid JSON"),
         ('{"a": 1}', "is not a run record (no format, path, config"),
         ("WRONG_FORMAT", "evaluate its run again"),
-        ("NO_RANDOM", "has no best-checkpoint results for protocol random: give --protocols srnn"),
+        ("NO_RANDOM", "has no best-checkpoint results for protocol random: give protocols=[srnn]"),
     ],
 )
 def test_a_bad_record_is_refused_naming_the_file_and_the_fix(
-    tmp_path, evaluations, records, content, says
+    tmp_path, evaluations, records, content, says, capsys
 ):
-    report(tmp_path, seed_run(tmp_path, 1), "--records", records)
+    report(tmp_path, seed_run(tmp_path, 1), records=records)
     (record,) = records.glob("*.json")
+    protocols = "protocols=[srnn,random]" if content == "NO_RANDOM" else "protocols=[srnn]"
     if content == "WRONG_FORMAT":
-        content = record.read_text().replace('"format": 1', '"format": 99')
-    args = ["--records", str(records), "--datasets", "none", "--budget", "b"]
-    if content == "NO_RANDOM":
-        args += ["--protocols", "srnn", "random"]
-    else:
+        record.write_text(record.read_text().replace('"format": 1', '"format": 99'))
+    elif content != "NO_RANDOM":
         record.write_text(content)
-        args += ["--protocols", "srnn"]
-    with pytest.raises(SystemExit) as err:
-        main([*args, "--work-dir", str(tmp_path / "w")])
-    assert str(record) in str(err.value) and says in str(err.value)
+    text = refusal(capsys, report_cfg(tmp_path, f"records={records}", "datasets=[]", protocols))
+    assert str(record) in text and says in text and text.count("\n") == 1
 
 
-def test_a_records_folder_that_does_not_exist_is_refused(tmp_path, evaluations):
-    with pytest.raises(SystemExit, match="is not a folder"):
-        main(["--records", str(tmp_path / "nope"), "--datasets", "none", "--budget", "b"])
+def test_a_records_folder_that_does_not_exist_is_refused(tmp_path, evaluations, capsys):
+    text = refusal(capsys, report_cfg(tmp_path, f"records={tmp_path / 'nope'}", "datasets=[]"))
+    assert "is not a folder" in text
 
 
 def test_the_page_puts_h36m_before_cmu_whatever_the_records_file_names(
@@ -188,8 +210,8 @@ def test_the_page_puts_h36m_before_cmu_whatever_the_records_file_names(
         run_name="li2018_cmu",
         data={"name": "cmu", "seed": 1},
     )
-    report(tmp_path, cmu, seed_run(tmp_path, 1), "--records", records)
+    report(tmp_path, cmu, seed_run(tmp_path, 1), records=records)
     assert sorted(p.name[:10] for p in records.glob("*.json")) == ["li2018_cmu", "li2018_h36"]
-    page = report(tmp_path, "--records", records)
-    rows = [line for line in page.splitlines() if "| ours, best |" in line]
-    assert [row.split(" | ")[0] for row in rows] == ["| li2018_h36m", "| li2018_cmu"]
+    page = report(tmp_path, records=records)
+    rows = [r for r in cells(headline_in(page)) if r[3] == "ours, best"]
+    assert [r[0] for r in rows] == ["li2018_h36m", "li2018_cmu"]

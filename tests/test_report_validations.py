@@ -6,17 +6,26 @@ iterations is in tests/test_train.py::test_short_run_checkpoints_logs_and_evalua
 
 import pytest
 
+from src.reporting.frame import Results
 from src.reporting.groups import group_runs
 from src.reporting.page import build_page
 from src.reporting.published import published_for
-from src.reporting.records import read_records, write_record
+from src.reporting.runs import read_records, write_record
 from src.reporting.tables import same_set_average
 from src.reporting.tensorboard import validation_curve
-from src.reporting.verdicts import validation_means
 from tests.test_report import ABSENT
 from tests.test_report_headline import EVALUATED, seeded
 
 TARGETS = {"h36m": 0.03}
+
+
+def page(runs, notes=None) -> str:
+    return build_page(Results(group_runs(runs)), ["srnn"], "cmd", None, "abc", TARGETS, notes)
+
+
+def validation_means(runs) -> dict:
+    results = Results(group_runs(runs))
+    return results.validation_means(results.groups[0], "srnn")
 
 
 def test_the_curve_is_the_average_per_horizon_at_each_validation(tmp_path):
@@ -70,18 +79,16 @@ def test_a_miss_shows_the_error_at_each_validation_beside_the_published_value():
         with_curve(seeded(0.05, 2), {500: 1.90, 1000: 1.74}),
         with_curve(seeded(0.05, 3), {500: 1.70, 1000: 1.72, 1500: 9.0}),
     ]
-    assert list(validation_means(group_runs(runs)[0], "srnn")) == [500, 1000]
-    page = build_page(group_runs(runs), [], ["srnn"], "cmd", None, "abc", TARGETS)
-    assert "Rows that miss it: li2018_h36m (no explanation given). li2018_h36m at each " in page
+    assert list(validation_means(runs)) == [500, 1000]
+    text = page(runs)
+    assert "Rows that miss it: li2018_h36m (no explanation given). li2018_h36m at each " in text
     assert (
         "li2018_h36m at each validation (iterations 500 to 1,000, every 500; mean over 3 seeds): "
-        "0.40 0.40 at 80 ms (published 0.39), " in page
+        "0.40 0.40 at 80 ms (published 0.39), " in text
     )
-    assert f"1.80 1.74 at 1000 ms (published {at_1000:.2f})." in page
+    assert f"1.80 1.74 at 1000 ms (published {at_1000:.2f})." in text
     # A note comes first; the curve still follows. Where the horizons named are those missed.
-    noted = build_page(group_runs(runs), [], ["srnn"], "cmd", None, "abc", TARGETS, {
-        "li2018_h36m": "a short budget"
-    })  # fmt: skip
+    noted = page(runs, {"li2018_h36m": "a short budget"})
     assert "li2018_h36m (a short budget). li2018_h36m at each validation" in noted
     for ms in (80, 160, 320, 400):
         assert f"at {ms} ms (published" in noted
@@ -89,25 +96,22 @@ def test_a_miss_shows_the_error_at_each_validation_beside_the_published_value():
     # Without curves (a run logged elsewhere, an older record) the row is named as before.
     for run in runs:
         run["validations"] = {}
-    bare = build_page(group_runs(runs), [], ["srnn"], "cmd", None, "abc", TARGETS)
+    bare = page(runs)
     assert "li2018_h36m (no explanation given)." in bare and "each validation" not in bare
     # A row that reproduces gets no curve.
     fine = [with_curve(seeded(0.0, s), {500: 1.7}) for s in (1, 2)]
-    assert "each validation" not in build_page(
-        group_runs(fine), [], ["srnn"], "cmd", None, "abc", TARGETS
-    )
+    assert "each validation" not in page(fine)
 
 
 def test_one_validation_of_one_seed():
-    (group,) = group_runs([with_curve(seeded(0.05, 1), {500: 1.8})])
-    page = build_page([group], [], ["srnn"], "cmd", None, "abc", TARGETS)
-    assert "li2018_h36m at each validation (iteration 500): 0.40 at 80 ms" in page
+    text = page([with_curve(seeded(0.05, 1), {500: 1.8})])
+    assert "li2018_h36m at each validation (iteration 500): 0.40 at 80 ms" in text
 
 
 def test_a_curve_validated_on_another_protocol_is_not_shown():
     run = with_curve(seeded(0.05, 1), {500: 1.8})
     run["config"]["data"]["eval_protocol"] = "random"
-    assert validation_means(group_runs([run])[0], "srnn") == {}
+    assert validation_means([run]) == {}
 
 
 def test_a_record_keeps_the_curve_with_its_numbers_as_numbers(tmp_path):

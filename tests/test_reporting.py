@@ -1,4 +1,5 @@
-"""Published numbers and result tables: lookups against the papers, layout, absent actions."""
+"""Published numbers, evaluation tables (src.eval's results.{json,md,csv}) and the long table of
+the report: lookups against the papers, layout, absent actions, mean ± std over seeds."""
 
 import csv
 import io
@@ -11,20 +12,22 @@ import pytest
 import torch
 
 from src.reporting import published as published_module
+from src.reporting.frame import Results
+from src.reporting.groups import group_runs
+from src.reporting.page import per_action_csv
 from src.reporting.published import (
-    PublishedRow,
     ReportingError,
     find_published,
-    load_published,
+    published_frame,
     published_table,
 )
-from src.reporting.seed_table import SeedTable, Stat, seed_stat
 from src.reporting.tables import (
     AVERAGE,
-    ResultTable,
+    result_table,
     results_from_metric,
     same_set_average,
-    table_from_dict,
+    table_markdown,
+    tables_csv,
 )
 
 PACKAGED_CSV = Path(__file__).parents[1] / "src" / "reporting" / "published_results.csv"
@@ -61,12 +64,12 @@ def test_packaged_csv_is_a_byte_copy_of_the_shared_one():
     assert PACKAGED_CSV.read_bytes() == shared.read_bytes()
 
 
-def test_load_published_rows_are_typed():
-    rows = load_published()
+def test_published_rows_are_typed():
+    rows = published_frame()
     assert len(rows) == 771  # data lines of the csv
-    assert all(isinstance(r, PublishedRow) for r in rows)
-    first = rows[0]
-    assert first == PublishedRow("li2018", 1, "h36m", "erd", "walking", 80, 0.93)
+    assert list(rows.columns) == ["paper", "table", "dataset", "method", "action", "ms", "value"]
+    first = rows.iloc[0]
+    assert tuple(first) == ("li2018", 1, "h36m", "erd", "walking", 80, 0.93)
 
 
 def test_martinez_table1_zero_velocity_walking():
@@ -81,7 +84,9 @@ def test_li_table2_conv_s2s():
 
 
 def test_average_rows_exist_only_where_printed():
-    with_average = {(r.paper, r.table, r.method) for r in load_published() if r.action == "average"}
+    rows = published_frame()
+    rows = rows[rows.action == "average"]
+    with_average = set(zip(rows.paper, rows.table, rows.method, strict=True))
     assert ("li2018", 2, "conv_s2s") in with_average
     assert ("li2018", 4, "rrnn") in with_average
     assert not any(t == 1 for _, t, _ in with_average)
@@ -106,11 +111,13 @@ def test_unknown_lookup_lists_what_exists():
 
 
 def test_conflicting_cells_raise(monkeypatch):
-    rows = (
-        PublishedRow("p", 1, "h36m", "m", "walking", 80, 0.5),
-        PublishedRow("p", 2, "h36m", "m", "walking", 80, 0.6),
+    import pandas as pd
+
+    rows = pd.DataFrame(
+        [("p", 1, "h36m", "m", "walking", 80, 0.5), ("p", 2, "h36m", "m", "walking", 80, 0.6)],
+        columns=["paper", "table", "dataset", "method", "action", "ms", "value"],
     )
-    monkeypatch.setattr(published_module, "_rows", lambda: rows)
+    monkeypatch.setattr(published_module, "published_frame", lambda: rows)
     with pytest.raises(ReportingError, match="pass table="):
         published_table("p", None, "h36m", "m")
     assert published_table("p", 2, "h36m", "m") == {"walking": {80: 0.6}}
@@ -119,10 +126,10 @@ def test_conflicting_cells_raise(monkeypatch):
 # --- result tables ---------------------------------------------------------------------------
 
 
-def make_table(**overrides) -> ResultTable:
+def make_table(**overrides) -> dict:
     kwargs = dict(
         title="Zero-velocity, H3.6M",
-        metric="Euler-angle error",
+        metric="euler",
         unit="rad",
         actions=["walking", "eating", "discussion", "smoking"],
         horizons_ms=[80, 160, 320, 400],
@@ -133,53 +140,57 @@ def make_table(**overrides) -> ResultTable:
         },
         absent={"discussion": "S5 discussion_1.txt and discussion_2.txt are missing"},
         published=published_table("martinez2017", 1, "h36m", "zero_velocity"),
-        published_label="Martinez et al. 2017, Table 1",
+        published_label="martinez2017 zero_velocity",
     )
     kwargs.update(overrides)
-    return ResultTable(**kwargs)
+    return result_table(**kwargs)
 
 
 def test_average_is_mean_over_evaluated_actions():
     table = make_table()
-    assert table.evaluated == ["walking", "eating", "smoking"]
-    avg = table.average()
-    assert avg[80] == pytest.approx((0.3941 + 0.2711 + 0.2581) / 3)
-    assert avg[400] == pytest.approx((1.1521 + 0.8631 + 0.9491) / 3)
+    assert table["average"]["actions"] == ["walking", "eating", "smoking"]
+    avg = table["average"]["values"]
+    assert avg["80"] == pytest.approx((0.3941 + 0.2711 + 0.2581) / 3)
+    assert avg["400"] == pytest.approx((1.1521 + 0.8631 + 0.9491) / 3)
+
+
+def md_rows(md: str) -> list[str]:
+    """The markdown's lines, table cells stripped of their padding."""
+    return [
+        " | ".join(c.strip() for c in line.strip("|").split("|")) if line.startswith("|") else line
+        for line in md.splitlines()
+    ]
 
 
 def test_markdown_layout_with_published_and_absent():
-    md = make_table().to_markdown()
-    lines = md.splitlines()
-    assert "| action | 80 ms | 160 ms | 320 ms | 400 ms |" in lines
-    assert "| walking | 0.39 (0.39) | 0.68 (0.68) | 0.99 (0.99) | 1.15 (1.15) |" in lines
-    assert "| discussion [1] | absent | absent | absent | absent |" in lines
+    md = table_markdown(make_table())
+    lines = md_rows(md)
+    assert "action | 80 ms | 160 ms | 320 ms | 400 ms" in lines
+    assert "walking | 0.39 (0.39) | 0.68 (0.68) | 0.99 (0.99) | 1.15 (1.15)" in lines
+    assert "discussion [1] | absent | absent | absent | absent" in lines
     # Beside our average: Martinez's values averaged over the same 3 evaluated actions.
-    assert "| **average** | 0.31 (0.31) | 0.55 (0.55) | 0.89 (0.90) | 0.99 (0.99) |" in lines
+    assert "**average** | 0.31 (0.31) | 0.55 (0.55) | 0.89 (0.90) | 0.99 (0.99)" in lines
     assert (
         "- [1] absent (discussion): S5 discussion_1.txt and discussion_2.txt are missing" in lines
     )
     assert "mean over the 3 evaluated actions (walking, eating, smoking)" in md
-    assert "Martinez et al. 2017, Table 1" in md
+    assert "martinez2017 zero_velocity" in md
     assert "nan" not in md.lower()
 
 
 def test_markdown_without_published_and_mpjpe_decimals():
-    table = make_table(
-        metric="MPJPE",
-        unit="mm",
-        published=None,
-        values={
-            a: {ms: 12.345 for ms in (80, 160, 320, 400)} for a in ("walking", "eating", "smoking")
-        },
-    )
-    assert table.decimals == 1
-    assert "| walking | 12.3 | 12.3 | 12.3 | 12.3 |" in table.to_markdown()
+    values = {
+        a: {ms: 12.345 for ms in (80, 160, 320, 400)} for a in ("walking", "eating", "smoking")
+    }
+    table = make_table(metric="mpjpe", unit="mm", published=None, values=values)
+    assert table["decimals"] == 1
+    assert "walking | 12.3 | 12.3 | 12.3 | 12.3" in md_rows(table_markdown(table))
 
 
 def test_csv_long_format():
-    rows = list(csv.DictReader(io.StringIO(make_table().to_csv())))
+    rows = list(csv.DictReader(io.StringIO(tables_csv([make_table()]))))
     assert list(rows[0]) == ["metric", "action", "ms", "value", "published", "note"]
-    assert {r["metric"] for r in rows} == {"Euler-angle error"}
+    assert {r["metric"] for r in rows} == {"euler"}
     assert len(rows) == 4 * 4 + 4  # 4 actions x 4 horizons + average
     walking80 = rows[0]
     assert (walking80["action"], walking80["ms"]) == ("walking", "80")
@@ -193,8 +204,8 @@ def test_csv_long_format():
     assert "walking, eating, smoking" in average[0]["note"]
 
 
-def test_to_dict_is_json_ready():
-    d = json.loads(json.dumps(make_table().to_dict()))
+def test_the_table_is_json_ready():
+    d = json.loads(json.dumps(make_table()))
     assert d["values"]["walking"]["80"] == 0.3941
     assert d["absent"] == {"discussion": "S5 discussion_1.txt and discussion_2.txt are missing"}
     assert d["average"]["actions"] == ["walking", "eating", "smoking"]
@@ -207,16 +218,17 @@ def test_table_validation():
         make_table(absent={})  # discussion neither evaluated nor absent
     with pytest.raises(ReportingError, match="finite"):
         make_table(
-            values={**make_table().values, "walking": {80: math.nan, 160: 1, 320: 1, 400: 1}}
+            values={**make_table()["values"], "walking": {80: math.nan, 160: 1, 320: 1, 400: 1}}
         )
-    with pytest.raises(ReportingError, match="not in actions"):
+    with pytest.raises(ReportingError, match="exactly one"):
         make_table(absent={"discussion": "x", "jumping": "y"})
 
 
 def test_all_absent_has_no_average():
-    table = make_table(values={}, absent={a: "no data" for a in make_table().actions})
-    md = table.to_markdown()
-    assert table.average() is None and "**average**" not in md
+    actions = ["walking", "eating", "discussion", "smoking"]
+    table = make_table(values={}, absent={a: "no data" for a in actions})
+    md = table_markdown(table)
+    assert table["average"] is None and "**average**" not in md
     assert "no action was evaluated" in md
 
 
@@ -290,10 +302,9 @@ def test_same_set_average_of_li_h36m_over_the_11_actions_of_this_data_copy():
 
 def test_result_table_prints_same_set_and_as_printed_averages():
     published = published_table("li2018", None, "h36m", "conv_s2s")
-    actions = ["walking", "eating", "discussion"]
     values = {a: {ms: 1.0 for ms in LI_MS} for a in ("walking", "eating")}
     table = make_table(
-        actions=actions,
+        actions=["walking", "eating", "discussion"],
         horizons_ms=list(LI_MS),
         values=values,
         absent={"discussion": "missing"},
@@ -301,112 +312,87 @@ def test_result_table_prints_same_set_and_as_printed_averages():
         published_label="li2018 conv_s2s",
     )
     same = same_set_average(published, ["walking", "eating"], LI_MS)
-    lines = table.to_markdown().splitlines()
-    average = next(line for line in lines if line.startswith("| **average**"))
-    assert (
-        average == "| **average** | " + " | ".join(f"1.00 ({same[ms]:.2f})" for ms in LI_MS) + " |"
-    )
-    printed = next(line for line in lines if line.startswith("| published average, as printed"))
-    assert printed.endswith(" | ".join(f"{published[AVERAGE][ms]:.2f}" for ms in LI_MS) + " |")
-    assert "same 2 evaluated actions" in table.to_markdown()
-    assert "over all 15 actions" in table.to_markdown()  # the paper's, not our 3
-    d = table.to_dict()
-    assert d["published_same_set"] == {str(ms): pytest.approx(same[ms]) for ms in LI_MS}
-    rows = list(csv.DictReader(io.StringIO(table.to_csv())))
+    lines = md_rows(table_markdown(table))
+    average = next(line for line in lines if line.startswith("**average**"))
+    assert average == "**average** | " + " | ".join(f"1.00 ({same[ms]:.2f})" for ms in LI_MS)
+    printed = next(line for line in lines if line.startswith("published average, as printed"))
+    assert printed.endswith(" | ".join(f"{published[AVERAGE][ms]:.2f}" for ms in LI_MS))
+    assert table["published_same_set"] == {str(ms): pytest.approx(same[ms]) for ms in LI_MS}
+    rows = list(csv.DictReader(io.StringIO(tables_csv([table]))))
     avg80 = next(r for r in rows if (r["action"], r["ms"]) == ("average", "80"))
     assert float(avg80["published"]) == pytest.approx(same[80])
     printed80 = next(r for r in rows if (r["action"], r["ms"]) == ("average_as_printed", "80"))
     assert float(printed80["published"]) == published[AVERAGE][80]
+    assert "over all 15 actions" in printed80["note"]  # the paper's, not our 2
 
 
-# --- seed aggregation -----------------------------------------------------------------------
+# --- the long table: mean ± std over seeds ---------------------------------------------------
 
 
-def test_seed_stat_is_mean_and_sample_std():
-    stat = seed_stat([0.40, 0.42, 0.44])
-    assert stat.mean == pytest.approx(0.42) and stat.n == 3
-    assert stat.std == pytest.approx(0.02)  # n - 1 denominator
-    assert stat.format(2) == "0.42 ± 0.02"
-    single = seed_stat([0.4])
-    assert single == Stat(0.4, None, 1) and single.format(2) == "0.40"
-    with pytest.raises(ReportingError):
-        seed_stat([])
-
-
-def _seed_tables() -> list[ResultTable]:
-    tables = []
-    for offset in (0.0, 0.02, 0.04):
+def seed_runs(offsets) -> list[dict]:
+    """Runs of one configuration whose seed k has walking and eating at the values below."""
+    runs = []
+    for seed, offset in enumerate(offsets, 1):
         values = {
             "walking": {80: 0.30 + offset, 160: 0.50 + offset},
             "eating": {80: 0.20 + 2 * offset, 160: 0.40},
         }
-        tables.append(
-            make_table(
-                actions=["walking", "eating", "discussion"],
-                horizons_ms=[80, 160],
-                values=values,
-                absent={"discussion": "missing"},
-                published=None,
-            )
+        table = make_table(
+            actions=["walking", "eating", "discussion"],
+            horizons_ms=[80, 160],
+            values=values,
+            absent={"discussion": "missing"},
+            published=None,
         )
-    return tables
+        config = {"run_name": "m", "seed": seed, "data": {"name": "synthetic"}}
+        result = {"provenance": {}, "tables": [table]}
+        runs.append(
+            {
+                "config": config,
+                "seed": seed,
+                "path": f"r{seed}",
+                "results": {"best": {"srnn": result}, "last": {"srnn": result}},
+            }
+        )
+    return runs
 
 
-def test_seed_table_aggregates_cells_and_averages():
-    tables = _seed_tables()
-    seeds = SeedTable("li2018_h36m, best", tables)
-    assert seeds.n == 3 and seeds.evaluated == ["walking", "eating"]
-    walking = seeds.stats("walking")
-    assert walking[80].mean == pytest.approx(0.32) and walking[80].std == pytest.approx(0.02)
-    eating = seeds.stats("eating")
-    assert eating[80].std == pytest.approx(0.04) and eating[160].std == pytest.approx(0.0)
-    # The average row: mean and std of the per-seed averages.
-    per_seed = [t.average()[80] for t in tables]  # 0.25, 0.28, 0.31
-    average = seeds.average()
-    assert average[80].mean == pytest.approx(sum(per_seed) / 3)
-    assert average[80].std == pytest.approx(0.03)
-    md = seeds.to_markdown()
-    assert "mean ± std over 3 seeds" in md
-    assert "| walking | 0.32 ± 0.02 | 0.52 ± 0.02 |" in md
-    assert "| **average** | 0.28 ± 0.03 | 0.46 ± 0.01 |" in md
-    assert "| discussion [1] | absent | absent |" in md
-    assert "sample standard deviation over the 3 seeds" in md
+def test_each_cell_is_mean_and_sample_std_over_the_seeds():
+    results = Results(group_runs(seed_runs((0.0, 0.02, 0.04))))
+    f = results.frame[(results.frame.checkpoint == "best") & results.frame.value.notna()]
+    cells = f.groupby(["action", "horizon"]).value.agg(["mean", "std"])
+    assert cells.loc[("walking", 80), "mean"] == pytest.approx(0.32)
+    assert cells.loc[("walking", 80), "std"] == pytest.approx(0.02)  # n - 1 denominator
+    assert cells.loc[("eating", 80), "std"] == pytest.approx(0.04)
+    assert cells.loc[("eating", 160), "std"] == 0
+    rows = list(csv.DictReader(io.StringIO(per_action_csv(results, "srnn", "euler"))))
+    walking = next(r for r in rows if (r["checkpoint"], r["action"]) == ("best", "walking"))
+    assert walking["n"] == "3" and float(walking["80 ms"]) == pytest.approx(0.32)
+    assert float(walking["80 ms std"]) == pytest.approx(0.02)
+    # The average row: mean and std of the per-seed averages (0.25, 0.28, 0.31 at 80 ms).
+    mean, std, n = results.average(results.groups[0], "srnn", "best")[80]
+    assert (mean, std, n) == (pytest.approx(0.28), pytest.approx(0.03), 3)
+    assert results.spread(results.groups[0], "srnn", "best")[80] == pytest.approx(0.06)
+    # Absent actions are in the long table, without a value and with their reason.
+    frame = results.frame
+    absent = frame[frame.action == "discussion"]
+    assert absent.value.isna().all() and set(absent.absent) == {"missing"}
 
 
-def test_seed_table_with_published_and_one_seed():
-    published = {"walking": {80: 0.3, 160: 0.5}, "eating": {80: 0.1}, AVERAGE: {80: 0.25}}
-    seeds = SeedTable("one seed", _seed_tables()[:1], published, "paper x")
-    md = seeds.to_markdown()
-    assert "1 seed" in md and "±" not in md.split("\n\n")[1]  # no std from one value
-    assert "| walking | 0.30 (0.30) | 0.50 (0.50) |" in md
-    # Same-set average over walking and eating at 80 ms; none at 160 (eating has no value).
-    assert "| **average** | 0.25 (0.20) | 0.45 (-) |" in md
-    assert "| published average, as printed | 0.25 | - |" in md
-    assert "paper x" in md
+def test_one_seed_has_no_spread():
+    results = Results(group_runs(seed_runs((0.0,))))
+    mean, std, n = results.average(results.groups[0], "srnn", "best")[80]
+    assert mean == pytest.approx(0.25) and n == 1 and math.isnan(std)
+    assert results.spread(results.groups[0], "srnn", "best") is None
 
 
-def test_seed_table_refuses_different_configurations():
-    tables = _seed_tables()
-    other = make_table(
-        actions=["walking", "eating", "discussion"],
-        horizons_ms=[80, 160],
-        values={a: {80: 0.1, 160: 0.1} for a in ("walking", "eating", "discussion")},
-        absent={},
-        published=None,
-    )
-    with pytest.raises(ReportingError, match="differ"):
-        SeedTable("mixed", [tables[0], other])
-    with pytest.raises(ReportingError, match="no tables"):
-        SeedTable("empty", [])
-
-
-def test_table_from_dict_round_trips():
-    table = make_table()
-    back = table_from_dict(json.loads(json.dumps(table.to_dict())), table.published, "label")
-    assert back.values == table.values and back.absent == table.absent
-    assert back.average() == pytest.approx(table.average())
-    assert back.published_label == "label"
-    assert table_from_dict(table.to_dict()).published is None
+def test_seeds_evaluated_on_other_actions_are_refused():
+    runs = seed_runs((0.0, 0.02))
+    table = runs[1]["results"]["best"]["srnn"]["tables"][0]
+    table["values"]["discussion"] = {"80": 0.1, "160": 0.1}
+    del table["absent"]["discussion"]
+    with pytest.raises(ReportingError, match="seeds were evaluated on different actions"):
+        Results(group_runs(runs))
 
 
 def test_results_csv_of_eval_is_one_table_that_tells_the_metrics_apart(

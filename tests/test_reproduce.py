@@ -154,15 +154,16 @@ def test_two_seeds_run_at_once_with_joblib_and_the_report_aggregates_them(
     # The report over the multirun folder: one row, two seeds, best and last.
     monkeypatch.setenv("MOTION_DATA_DIR", str(synthetic_data_dir))
     from src.report import main
+    from tests.conftest import compose_config
 
     out, work = tmp_path / "results.md", tmp_path / "work"
-    argv = [str(sweep), "--out", str(out), "--protocols", "srnn", "--work-dir", str(work)]
-    assert main([*argv, "--datasets"]) == 0  # --datasets with none: no baselines
+    args = [f"runs=[{sweep}]", f"out={out}", "protocols=[srnn]", "datasets=[]"]
+    assert main(compose_config("report", args, work)) == 0  # datasets=[]: no baselines
     page = out.read_text()
     raw = json.loads((work / "report.json").read_text())
     (group,) = raw["groups"]
     assert group["label"] == "li2018_h36m" and len(group["runs"]) == 2
-    assert "li2018_h36m (synthetic): 2 seeds (1, 2)" in page
+    assert "li2018_h36m (synthetic, 6 iterations): 2 seeds (1, 2)" in page
     for selection in ("best", "last"):
         averages = [
             r["results"][selection]["srnn"]["tables"][0]["average"]["values"]["80"]
@@ -171,8 +172,8 @@ def test_two_seeds_run_at_once_with_joblib_and_the_report_aggregates_them(
         mean = sum(averages) / 2
         std = abs(averages[0] - averages[1]) / 2**0.5  # sample std of two values
         label = {"best": "best (test-selected)", "last": "last (no test info)"}[selection]
-        row = next(line for line in page.splitlines() if f"| {label} | 2 |" in line)
-        assert f"| {mean:.2f} ± {std:.2f} |" in row, row
+        row = next(line for line in page.splitlines() if f"| {label} " in line)
+        assert f" {mean:.2f} ± {std:.2f} " in row, row
     # Both the lean best checkpoint and the resumable last.ckpt were read and evaluated.
     for run in group["runs"]:
         assert re.fullmatch(r".*best-epoch\d+\.ckpt", str(run["checkpoints"]["best"]))
@@ -180,10 +181,10 @@ def test_two_seeds_run_at_once_with_joblib_and_the_report_aggregates_them(
 
     # Plain run folders give the same page body.
     out2 = tmp_path / "plain.md"
-    plain = [*map(str, runs), "--out", str(out2), "--protocols", "srnn"]
-    assert main([*plain, "--work-dir", str(tmp_path / "work2"), "--datasets"]) == 0
+    plain = [f"runs=[{','.join(map(str, runs))}]", f"out={out2}", "protocols=[srnn]", "datasets=[]"]
+    assert main(compose_config("report", plain, tmp_path / "work2")) == 0
 
-    def body(text: str) -> str:  # the command, at the end, names the arguments
-        return text.split("## Provenance", 1)[1].split("## Command", 1)[0]
+    def body(text: str) -> str:  # the CSV links and the command name the page's file
+        return text.split("## Provenance", 1)[1].split("## Per-action tables", 1)[0]
 
     assert body(out2.read_text()) == body(page)

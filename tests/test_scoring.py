@@ -238,25 +238,31 @@ def test_columns_the_protocol_ignores_do_not_count(srnn_windows, tmp_path, synth
 
 
 def test_plot_errors_and_the_report_take_the_scored_results(
-    srnn_windows, tmp_path, synthetic_data_dir
+    srnn_windows, tmp_path, synthetic_data_dir, capsys
 ):
     from src.plot_errors import plot_errors
     from src.report import main as report
+    from tests.conftest import compose_config
 
     path = _save(tmp_path, _zero_velocity(srnn_windows, model=np.array("my_model")))
     result, _ = _evaluate(tmp_path, synthetic_data_dir, f"predictions={path}", "data=synthetic")
     (results_json,) = tmp_path.glob("eval_*/results.json")
     assert plot_errors([results_json], tmp_path / "errors.png").is_file()
     page = tmp_path / "results.md"
-    common = ["--out", str(page), "--datasets", "none", "--work-dir", str(tmp_path / "work")]
-    assert report(["--scored", str(results_json), "--protocols", "srnn", *common]) == 0
-    text = page.read_text()
+    common = [f"out={page}", "datasets=[]", f"scored=[{results_json}]"]
+    assert report(compose_config("report", [*common, "protocols=[srnn]"], tmp_path / "w")) == 0
+    rows = [
+        [c.strip() for c in line.strip("|").split("|")]
+        for line in page.read_text().splitlines()
+        if line.startswith("| my_model")
+    ]
     average = result["tables"][0]["average"]["values"]
-    cells = " | ".join(f"{average[str(ms)]:.2f}" for ms in (80, 160, 320, 400, 560, 1000))
-    assert f"| my_model | synthetic | - | - | - | {cells} |" in text
-    assert "| my_model (predictions) |" in text
-    with pytest.raises(SystemExit, match="has no results for protocol random: score its"):
-        report(["--scored", str(results_json), "--protocols", "srnn", "random", *common])
+    cells = [f"{average[str(ms)]:.2f}" for ms in (80, 160, 320, 400, 560, 1000)]
+    assert ["my_model", "synthetic", "-", "-", "-", *cells] in rows
+    assert any(row[0] == "my_model (predictions)" for row in rows)
+    with pytest.raises(SystemExit):
+        report(compose_config("report", [*common, "protocols=[srnn,random]"], tmp_path / "w2"))
+    assert "has no results for protocol random: score its" in capsys.readouterr().err
 
 
 def test_published_values_stand_beside_a_file_on_a_papers_dataset():

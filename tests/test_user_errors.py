@@ -98,8 +98,9 @@ def test_cli_training_a_baseline_is_refused_before_anything_is_written(
     assert [p.name for p in written if p.suffix != ".log"] == []
 
 
-@pytest.mark.parametrize("overrides", [["model=running_avg_2", "adversarial=none"],
-                                       ["model=running_avg_4"]])  # fmt: skip
+@pytest.mark.parametrize(
+    "overrides", [["model=running_avg_2", "adversarial=none"], ["model=running_avg_4"]]
+)
 def test_training_a_running_average_is_refused(overrides, train_cfg):
     from src.lit.validation import validate_train_config
 
@@ -109,7 +110,7 @@ def test_training_a_running_average_is_refused(overrides, train_cfg):
 
 # ------------------------------------------------------------ row 7: published numbers, titles
 def test_published_numbers_only_beside_results_on_their_dataset():
-    from src.reporting.published import published_beside, published_for
+    from src.reporting.published import published_for
 
     ref = {"paper": "martinez2017", "method": "zero_velocity"}
     assert published_for(ref, "synthetic") == (None, None)
@@ -119,9 +120,6 @@ def test_published_numbers_only_beside_results_on_their_dataset():
     per_dataset = {"h36m": ref, "cmu": {"paper": "li2018", "method": "rrnn"}}
     assert published_for(per_dataset, "cmu")[1] == "li2018 rrnn"
     assert published_for(per_dataset, "synthetic") == (None, None)
-    stored = {"published": {"average": {"80": 0.4}}}  # a results.json table
-    assert published_beside(stored, "synthetic") is None
-    assert published_beside(stored, "h36m") == {"average": {"80": 0.4}}
 
 
 @pytest.fixture(scope="module")
@@ -144,18 +142,19 @@ def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
 
 
 def test_eval_tables_of_synthetic_data_carry_no_published_numbers(synthetic_zero_velocity):
+    from src.reporting.tables import table_markdown
     from src.results import build_tables
 
     dm, module, model_cfg, dataset = synthetic_zero_velocity
     assert dataset == "synthetic" and dm.dataset_name == "h36m"  # H3.6M format, not H3.6M
     euler, mpjpe = build_tables(module, dm, model_cfg, dataset)
-    assert euler.published is None and euler.published_label is None
-    assert "on synthetic" in euler.title and "h36m" not in euler.title
-    assert "published" not in euler.to_markdown().lower()
+    assert euler["published"] is None and euler["published_label"] is None
+    assert "on synthetic" in euler["title"] and "h36m" not in euler["title"]
+    assert "published" not in table_markdown(euler).lower()
 
 
 def test_visualize_title_names_the_real_dataset(synthetic_zero_velocity):
-    from src.reporting.plots import window_rows
+    from src.plots import window_rows
 
     dm, module, _, _ = synthetic_zero_velocity
     _, _, what = window_rows(dm, module, 0, observed_shown=5)
@@ -187,14 +186,21 @@ def test_misspelt_key_in_train_config_names_the_close_matches(monkeypatch, capsy
     called = []
     entry = hydra_entry("train")(lambda cfg: called.append(cfg))
     for argv, expected in [
-        (["trainr.max_steps=3"], "error: trainr.max_steps: no such key. Did you mean "
-                                 "trainer.max_steps?"),
-        (["model.net.kernl=[3,3]"], "error: model.net.kernl: no such key. Did you mean "
-                                    "model.net.kernel?"),
+        (
+            ["trainr.max_steps=3"],
+            "error: trainr.max_steps: no such key. Did you mean trainer.max_steps?",
+        ),
+        (
+            ["model.net.kernl=[3,3]"],
+            "error: model.net.kernl: no such key. Did you mean model.net.kernel?",
+        ),
         (["dta=cmu"], "error: dta: no such key. Did you mean data?"),
-        (["data=h36n"], "error: data=h36n: no such option of train. Did you mean data=h36m? "
-                        "Choose one of: cmu, h36m, synthetic."),
-    ]:  # fmt: skip
+        (
+            ["data=h36n"],
+            "error: data=h36n: no such option of train. Did you mean data=h36m? "
+            "Choose one of: cmu, h36m, synthetic.",
+        ),
+    ]:
         monkeypatch.setattr(sys, "argv", ["src.train", *argv])
         with pytest.raises(SystemExit) as info:
             entry()
@@ -244,11 +250,14 @@ def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("+model.net.kernal=[3,3]", r"model\.net\.kernal is not an argument of .*ConvSeq2Seq.* "
-                                    r"model\.net\.kernel\?"),
+        (
+            "+model.net.kernal=[3,3]",
+            r"model\.net\.kernal is not an argument of .*ConvSeq2Seq.* "
+            r"model\.net\.kernel\?",
+        ),
         ("+sampling.ete=0.5", r"sampling\.ete is not an argument of .*Constant.* sampling\.eta"),
     ],
-)  # fmt: skip
+)
 def test_added_keys_are_checked_against_their_constructor(override, message, train_cfg):
     from src.lit.validation import validate_train_config
 
@@ -307,19 +316,17 @@ def test_plot_errors_help_lists_its_arguments(tmp_path):
 
 def test_report_help_lists_its_arguments(tmp_path):
     text = _help("src.report", tmp_path)
-    for option in ("--out", "--budget", "--datasets", "--protocols", "--readme"):
-        assert option in text
+    for key in ("runs=", "records=", "out=", "readme=", "budget=", "datasets=", "protocols="):
+        assert f"\n{key}" in text
 
 
-def test_plot_errors_unknown_argument_names_the_close_one(capsys):
-    from src.plot_errors import main
-
-    with pytest.raises(SystemExit) as info:
-        main(["results=[a.json]", "metrc=mpjpe"])
-    assert info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error: unknown argument(s): metrc (did you mean metric?)")
-    assert err.count("\n") == 1
+def test_plot_errors_unknown_argument_names_the_close_one(tmp_path):
+    proc = run_module(
+        "src.plot_errors", "results=[a.json]", "metrc=mpjpe", data_dir=tmp_path, log_dir=tmp_path
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error: metrc: no such key. Did you mean metric?")
+    assert proc.stderr.count("\n") == 1
 
 
 # ------------------------------------------------------------ row 12: legends, mixed datasets
@@ -340,17 +347,20 @@ def _results(path: Path, model: str, dataset: str, **provenance) -> Path:
     return path
 
 
-def test_plot_errors_refuses_results_of_different_datasets(tmp_path, capsys):
-    from src.plot_errors import main
-
+def test_plot_errors_refuses_results_of_different_datasets(tmp_path):
     cmu = _results(tmp_path / "cmu" / "results.json", "zero_velocity", "cmu")
     h36m = _results(tmp_path / "h36m" / "results.json", "zero_velocity", "h36m")
-    with pytest.raises(SystemExit) as info:
-        main([f"results=[{cmu},{h36m}]", f"out={tmp_path / 'e.png'}"])
-    assert info.value.code == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error: the results come from different datasets (cmu, h36m)")
-    assert err.count("\n") == 1 and not (tmp_path / "e.png").exists()
+    proc = run_module(
+        "src.plot_errors",
+        f"results=[{cmu},{h36m}]",
+        f"out={tmp_path / 'e.png'}",
+        data_dir=tmp_path,
+        log_dir=tmp_path,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("error: the results come from different datasets (cmu, h36m)")
+    assert proc.stderr.count("\n") == 1 and not (tmp_path / "e.png").exists()
+    assert not (tmp_path / "plot_errors").exists()  # a refused plot leaves no folder behind
 
 
 def test_plot_errors_legend_tells_runs_apart(tmp_path):
@@ -378,7 +388,7 @@ def test_plot_errors_draws_distinct_legend_entries(tmp_path):
         plot_errors(runs, tmp_path / "f.png", labels=["x", "x"])
 
 
-def test_plot_errors_never_writes_over_a_file(tmp_path, monkeypatch, capsys):
+def test_plot_errors_never_writes_over_a_file(tmp_path):
     """A second plot to the same out= used to replace the first silently, and so did every
     plot with the default out (outputs/plots/errors_<metric>_<action>.png); out=<a folder>
     wrote <folder>.png while printing the folder, and out=e.xyz ended in a traceback."""
@@ -395,15 +405,14 @@ def test_plot_errors_never_writes_over_a_file(tmp_path, monkeypatch, capsys):
         with pytest.raises(ConfigError, match=message):
             plot_errors_module.plot_errors([run], target, action="walking")
     assert out.read_bytes() == first and not (tmp_path / "a.png").exists()
-    # Without out= each plot gets its own file, as run folders do.
-    monkeypatch.setattr(plot_errors_module, "PROJECT_ROOT", tmp_path)
-    written = [plot_errors_module.main([f"results=[{run}]"]) for _ in range(3)]
-    assert [p.name for p in written] == [
-        "errors_euler_average.png",
-        "errors_euler_average-1.png",
-        "errors_euler_average-2.png",
-    ]
-    assert all(p.is_file() for p in written)
+    # Without out= each plot goes into its own new run folder, as every entry point's output.
+    for _ in range(2):
+        proc = run_module(
+            "src.plot_errors", f"results=[{run}]", data_dir=tmp_path, log_dir=tmp_path / "logs"
+        )
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    written = sorted((tmp_path / "logs" / "plot_errors").rglob("errors_euler_average.png"))
+    assert len(written) == 2 and written[0].parent != written[1].parent
 
 
 def test_plot_errors_shows_no_published_curve_for_synthetic_results(tmp_path, monkeypatch):

@@ -12,7 +12,7 @@ from PIL import Image
 from src.lit.factory import ConfigError, build_for_evaluation
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.plot_errors import plot_errors
-from src.reporting.plots import (
+from src.plots import (
     PoseRow,
     animate,
     error_vs_horizon,
@@ -21,7 +21,7 @@ from src.reporting.plots import (
     strip_frames,
     window_rows,
 )
-from src.reporting.tables import ResultTable
+from src.reporting.tables import result_table
 from src.visualize import select_window
 from tests.conftest import compose_config, run_module
 
@@ -190,18 +190,19 @@ def test_animate_has_one_frame_per_motion_frame():
 def _results_json(path, values, published=None):
     tables = []
     for metric, unit in (("euler", "rad"), ("mpjpe", "mm")):
-        table = ResultTable(
-            title=f"{metric} test",
-            metric=metric,
-            unit=unit,
-            actions=["walking", "eating"],
-            horizons_ms=[80, 160],
-            values={"walking": values},
-            absent={"eating": "missing test file(s)"},
-            published=published,
-            published_label="paper X" if published else None,
+        tables.append(
+            result_table(
+                f"{metric} test",
+                metric,
+                unit,
+                ["walking", "eating"],
+                [80, 160],
+                {"walking": values},
+                {"eating": "missing test file(s)"},
+                published,
+                "paper X" if published else None,
+            )
         )
-        tables.append(table.to_dict())
     path.write_text(
         json.dumps({"provenance": {"model": path.stem, "dataset": "h36m"}, "tables": tables})
     )

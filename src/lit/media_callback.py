@@ -8,7 +8,7 @@ from lightning.pytorch.callbacks import Callback
 from omegaconf import DictConfig
 
 from src.metrics.kinematics import Skeleton
-from src.reporting.plots import frame_strip, window_rows
+from src.plots import frame_strip, window_rows
 
 
 class FrameStripLogger(Callback):

@@ -1,270 +1,235 @@
-"""The headline of the results page and the README's Results block: one table of every
-trained experiment (ours, best and last checkpoints, mean ± std over seeds; each published
-reference's same-set average with ours minus it; the verdict), its footnotes and a figure of
-error against horizon. The page (page.py) opens with it; the README block is it alone, written
-between the file's markers. What the numbers mean is decided in verdicts.py; this file only
-lays them out.
+"""The headline of the results page, also the README's Results block: every trained experiment
+at each budget, ours at the best and last checkpoints with the published same-set averages and
+ours minus them, the verdict, the zero-velocity yardstick, why a row misses; and the figures.
+What the numbers mean is decided in frame.py.
 """
 
 from __future__ import annotations
 
 import datetime as dt
-from pathlib import Path
 
-from src.lit.factory import git_commit
-from src.reporting.claims import ABLATIONS
-from src.reporting.groups import Group
-from src.reporting.plots import Curve, horizon_panels
-from src.reporting.published import known_slips
-from src.reporting.seed_table import Stat
-from src.reporting.tables import fmt, printed_scope
-from src.reporting.verdicts import (
+import pandas as pd
+
+from src.plots import Curve, line_panels
+from src.reporting.frame import (
     HORIZONS,
     PROTOCOLS,
     SELECTIONS,
-    TARGETS,
-    Reference,
-    beyond,
-    judge,
-    mean_average,
+    Results,
     printed_gap,
-    references,
-    seed_table,
     signed,
+    stat,
 )
+from src.reporting.groups import Group
+from src.reporting.published import REFERENCE_CODE_CHECKED, known_slips
+from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
 
 SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
-ABLATIONS_HEADING = "Ablations"
+COLS = [f"{ms} ms" for ms in HORIZONS]
+TITLES = (
+    "Average Euler error against horizon, ours and published",
+    "Mean validation error at 400 and 1000 ms against iteration, published as lines",
+)
 
 
-def _mark(n: int) -> str:
-    return str(n).translate(SUPERSCRIPTS)
+def stat_cells(average: dict, decimals: int = 2) -> list[str]:
+    return [stat(*average[ms], decimals) if ms in average else "-" for ms in HORIZONS]
 
 
-def stat_cells(average: dict[int, Stat] | None, decimals: int) -> list[str]:
-    average = average or {}
-    return [average[ms].format(decimals) if ms in average else "-" for ms in HORIZONS]
+def span(values) -> str:
+    known = sorted({v for v in values if v is not None})
+    return "-" if not known else f"{known[0]:,}" + (f"–{known[-1]:,}" if known[1:] else "")
 
 
-def _ms_list(horizons: list[int]) -> str:
-    return ", ".join(str(ms) for ms in horizons) + " ms"
+def _ms(horizons: list[int]) -> str:
+    return ", ".join(map(str, horizons)) + " ms"
 
 
-def page_order(groups: list[Group]) -> list[Group]:
-    """The page's order: Human3.6M's rows, then CMU's, then any other data (both papers' order),
-    the ablations last; otherwise as found (records are read in file-name order, which would
-    put li2018_cmu first)."""
-    rank = {"h36m": 0, "cmu": 1}
-    return sorted(groups, key=lambda g: (g.run_name in ABLATIONS, rank.get(g.dataset, 2)))
+def _untrained(results: Results, group: Group) -> list[str]:
+    judged = results.actions(group)
+    return [a for a in results.actions(group, judged=False) if a not in judged]
 
 
-def headline_groups(groups: list[Group]) -> list[Group]:
-    """The groups of the headline: all but Li et al.'s ablations, which have their section
-    (and all of them when nothing else was trained)."""
-    return [g for g in groups if g.run_name not in ABLATIONS] or list(groups)
+def headline_groups(results: Results) -> list[Group]:
+    """All but Li et al.'s ablations, which have their section (all when nothing else)."""
+    return [g for g in results.groups if not g.ablation] or results.groups
 
 
-def _reference_verdict(missed: dict[str, list[int]], target: float) -> str:
-    if not any(missed.values()):
-        return f"within {target:.2f}"
-    if missed["best"] == missed["last"]:
-        return f"beyond {target:.2f} at {_ms_list(missed['best'])}"
-    return f"beyond {target:.2f}: " + "; ".join(
-        f"{s} {_ms_list(missed[s])}" for s in SELECTIONS if missed[s]
-    )
+def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
+    """{group: judgement} of each of `groups` that gets a verdict: an experiment's longest
+    budget (an experiment's groups come longest first)."""
+    judged = {}
+    for group in groups:
+        if all((g.label, g.dataset) != (group.label, group.dataset) for g in judged):
+            judged[group] = results.judge(group, protocol, targets.get(group.dataset))
+    return judged
 
 
-def headline_table(
-    groups: list[Group], protocol: str, targets: dict[str, float], ablations_link: str | None
-) -> tuple[list[str], list[str]]:
-    """(table lines, footnote lines) of the headline."""
-    horizons = " | ".join(f"{ms} ms" for ms in HORIZONS)
-    lines = [
-        f"| experiment | data | row | n | {horizons} | verdict |",
-        "|---|---|---|---:|" + "---:|" * len(HORIZONS) + "---|",
-    ]
-    footnotes: list[str] = []
-
-    def footnote(text: str) -> str:
-        if text not in footnotes:
-            footnotes.append(text)
-        return _mark(footnotes.index(text) + 1)
-
-    for group in headline_groups(groups):
-        target = targets.get(group.dataset)
-        verdict = judge(group, protocol, target)
-        label = group.label
-        if group.settings:
-            settings = ", ".join(f"{k}={v}" for k, v in group.settings.items())
-            label += footnote(f"{group.label}: {settings}.")
-        tables = {s: seed_table(group, s, protocol, "euler") for s in SELECTIONS}
-        for selection in SELECTIONS:
-            table = tables[selection]
-            if selection == "best":
-                text = _verdict_text(group, verdict, footnote)
-                first = [label, group.dataset]
-            else:
-                text, first = "", ["", ""]
-            lines.append(
-                f"| {' | '.join(first)} | ours, {selection} | {table.n} | "
-                + " | ".join(stat_cells(table.average(), 2))
-                + f" | {text} |"
-            )
-        for reference in references(group):
-            lines.append(_reference_row(group, reference, protocol, target))
-    notes = [f"{_mark(k + 1)} {text}" for k, text in enumerate(footnotes)]
-    ablations = [g for g in groups if g.run_name in ABLATIONS]
-    if ablations and ablations_link and len(headline_groups(groups)) < len(groups):
-        notes.append(
-            f"Li et al.'s ablations ({len(ablations)} trained "
-            f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) "
-            f"are compared with li2018_h36m, claim by claim, under [{ABLATIONS_HEADING}]"
-            f"({ablations_link})."
-        )
-    return lines, notes
-
-
-def _verdict_text(group: Group, verdict, footnote) -> str:
-    if verdict.status == "not judged":
-        return f"not judged ({verdict.why})"
-    if verdict.reference is None:
-        return verdict.status
-    chosen = verdict.reference
-    text = f"**{verdict.status}**, judged against {chosen.name}"
-    if len(references(group)) > 1:
-        about = f" ({chosen.about})" if chosen.about else ""
-        text += footnote(f"{group.label}: judged against {chosen.name}{about}: {verdict.why}.")
+def _verdict(results: Results, group: Group, judgement, mark) -> str:
+    if judgement is None:
+        return "shorter budget"
+    if judgement.status == "not judged":
+        return f"not judged ({judgement.why})"
+    if (ref := judgement.reference) is None:
+        return judgement.status
+    text = f"**{judgement.status}**, judged against {ref.name}"
+    if len(results.references(group)) > 1:
+        about = f" ({ref.about})" if ref.about else ""
+        text += mark(f"{group.label}: judged against {ref.name}{about}: {judgement.why}.")
     return text
 
 
-def _reference_row(group: Group, reference: Reference, protocol: str, target) -> str:
-    best = seed_table(group, "best", protocol, "euler", reference)
-    last = seed_table(group, "last", protocol, "euler", reference)
-    same = best.published_same_set()
-    ours = {s: mean_average(t) for s, t in (("best", best), ("last", last))}
-    name = f"{reference.name}, {len(best.evaluated)} actions"
-    slips = known_slips(reference.key, best.evaluated)
-    if slips:
-        name += f" incl. slips ({', '.join(slips)})"
+def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
+    """(label, cells, verdict) of a reference: its same-set average with ours minus it (best,
+    last), and where that is beyond the target."""
+    actions, same = results.actions(group), results.same_set(group, ref)
     if not same:
-        printed = best.published_as_printed()
-        cells = [fmt(printed.get(ms), 2) for ms in HORIZONS]
-        return (
-            f"|  |  | {reference.name}, as printed ({printed_scope(reference.published)}) | | "
-            + " | ".join(cells)
-            + " | no same-set value: not judged |"
-        )
-    cells = []
-    for ms in HORIZONS:
-        if ms not in same:
-            cells.append("-")
-            continue
-        gaps = ", ".join(
-            signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS if ms in ours[s]
-        )
-        cells.append(f"{same[ms]:.2f} ({gaps})")
-    verdict = "-"
-    if target is not None:
-        missed = {s: beyond(ours[s], same, target) for s in SELECTIONS}
-        verdict = _reference_verdict(missed, target)
-    return f"|  |  | {name} | | " + " | ".join(cells) + f" | {verdict} |"
+        printed = ref.published.get(AVERAGE, {})
+        cells = [fmt(printed.get(ms)) for ms in HORIZONS]
+        return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
+    name = f"{ref.name}, {len(actions)} actions"
+    if slips := known_slips(ref.key, actions):
+        name += f" incl. slips ({', '.join(slips)})"
+    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
+    cells = ["-"] * len(HORIZONS)
+    for k, ms in enumerate(HORIZONS):
+        if ms in same:
+            gaps = ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)
+            cells[k] = f"{same[ms]:.2f} ({gaps})"
+    if target is None:
+        return name, cells, "-"
+    missed = results.missed(group, protocol, ref, target)
+    if not any(missed.values()):
+        return name, cells, f"within {target:.2f}"
+    if missed["best"] == missed["last"]:
+        return name, cells, f"beyond {target:.2f} at {_ms(missed['best'])}"
+    where = "; ".join(f"{s} {_ms(missed[s])}" for s in SELECTIONS if missed[s])
+    return name, cells, f"beyond {target:.2f}: {where}"
 
 
-def headline(
-    groups: list[Group],
-    protocol: str,
-    targets: dict[str, float],
-    figure: str | None,
-    ablations_link: str | None,
-    intro: str,
-) -> list[str]:
-    """The headline's lines: intro, legend, table, footnotes and figure."""
+def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
+    """(table, footnotes, why-rows-miss lines) of the headline."""
+    rows, notes = [], []
+
+    def mark(text: str) -> str:
+        if text not in notes:
+            notes.append(text)
+        return str(notes.index(text) + 1).translate(SUPERSCRIPTS)
+
+    def add(experiment="", data="", iterations="", row="", n="", cells=(), verdict=""):
+        rows.append([experiment, data, iterations, row, n, *cells, verdict])
+
+    groups = headline_groups(results)
+    judged = verdicts(results, groups, protocol, targets)
+    for k, group in enumerate(groups):
+        label, n, budget = group.label, str(len(group.runs)), f"{group.iterations:,}"
+        if group.settings:
+            label += mark(
+                f"{label}: " + ", ".join(f"{a}={v}" for a, v in group.settings.items()) + "."
+            )
+        if untrained := _untrained(results, group):
+            everything = len(results.actions(group, judged=False))
+            label += mark(
+                f"{group.label}: {', '.join(untrained)} has no training files in this copy: left "
+                f"out of the average the verdict judges ({everything - len(untrained)} actions, "
+                f"the published one likewise), shown in the per-action tables and the rows "
+                f"'all {everything} actions'."
+            )
+        verdict = _verdict(results, group, judged.get(group), mark)
+        for s in SELECTIONS:
+            best, cells = s == "best", stat_cells(results.average(group, protocol, s, judged=True))
+            first = (label, group.dataset) if best else ("", "")
+            add(*first, budget, f"ours, {s}", n, cells, verdict if best else "")
+        for s in SELECTIONS if untrained else ():
+            cells = stat_cells(results.average(group, protocol, s))
+            add("", "", budget, f"ours, {s}, all {everything} actions", n, cells)
+        for ref in results.references(group):
+            name, cells, text = _reference_row(
+                results, group, ref, protocol, targets.get(group.dataset)
+            )
+            add(row=name, cells=cells, verdict=text)
+        zero = [
+            b for b in results.baselines if (b.label, b.dataset) == ("zero_velocity", group.dataset)
+        ]
+        if zero and (k + 1 == len(groups) or groups[k + 1].dataset != group.dataset):
+            cells = stat_cells(results.average(zero[0], protocol, "-", judged=True))
+            what = f"baseline, {len(results.actions(zero[0]))} actions"
+            add("zero-velocity", group.dataset, "-", what, "-", cells, "the yardstick")
+    columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
+    footnotes = [f"{str(k + 1).translate(SUPERSCRIPTS)} {t}" for k, t in enumerate(notes)]
+    ablations = [g for g in results.groups if g.ablation]
+    if link and ablations and len(groups) < len(results.groups):
+        footnotes.append(
+            f"Li et al.'s ablations ({len(ablations)} trained "
+            f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) are compared "
+            f"with li2018_h36m, claim by claim, under [Ablations]({link})."
+        )
+    why = [
+        results.diagnosis(group, protocol, j, REFERENCE_CODE_CHECKED.get(group.run_name))
+        for group, j in judged.items()
+        if j.status == "misses"
+    ]
+    return markdown(pd.DataFrame(rows, columns=columns)), footnotes, why
+
+
+def headline(results, protocol, targets, figures, link, intro, diagnosis=True) -> list[str]:
+    """The headline's lines: intro, legend, table, footnotes, why rows miss (the page's, not
+    the README's), figures."""
     goal = ", ".join(f"{t:.2f} rad on {d}" for d, t in targets.items())
-    table, notes = headline_table(groups, protocol, targets, ablations_link)
-    lines = [
-        intro,
-        "",
+    table, notes, why = headline_table(results, protocol, targets, link)
+    legend = (
         "Ours: mean ± std over n seeds, best checkpoint (selected on the test windows, as the "
         "papers did) and last. Published: the paper's average over the same actions (ours minus "
-        f"it: best, last). Reproduces: both within {goal} at every published horizon.",
-        "",
-        *table,
-        "",
-    ]
-    if notes:  # one list: no blank line between footnotes
-        lines += [f"- {note}" for note in notes] + [""]
-    if figure:
-        lines += [f"![Average Euler error against horizon, ours and published]({figure})", ""]
-    return lines
+        f"it: best, last). Reproduces: both within {goal} at every published horizon."
+    )
+    lines = [intro, "", legend, "", table, "", *[f"- {note}" for note in notes]]
+    if why and diagnosis:
+        lines += ["", "**Why rows miss.**", *[f"- {text}" for text in why]]
+    lines += [""] + [f"![{t}]({f})" for t, f in zip(TITLES, figures, strict=False) if f]
+    return [*lines, ""] if any(figures) else lines
 
 
-def headline_figure(groups: list[Group], protocol: str):
-    """Error against horizon, one panel per dataset: ours (best, mean ± std over seeds; last
-    dotted) and each published same-set average (dashed), per headline experiment."""
-    panels: dict[str, list[Curve]] = {}
-    for k, group in enumerate(headline_groups(groups)):
-        curves = panels.setdefault(group.dataset, [])
-        for selection, style in (("best", "-"), ("last", ":")):
-            average = seed_table(group, selection, protocol, "euler").average() or {}
-            values = {ms: s.mean for ms, s in average.items()}
-            std = {ms: s.std for ms, s in average.items() if s.std is not None}
-            if values:
-                curves.append(
-                    Curve(f"{group.label}, ours {selection}", values, std or None, k, style)
-                )
-        for j, reference in enumerate(references(group)):
-            same = seed_table(group, "best", protocol, "euler", reference).published_same_set()
-            if same:
-                curves.append(Curve(reference.name, same, None, k, "--" if j == 0 else "-."))
-    panels = {d: c for d, c in panels.items() if c}
-    if not panels:
-        return None
-    where = PROTOCOLS.get(protocol, protocol)
-    return horizon_panels([(f"{d}: {where}", c) for d, c in panels.items()])
-
-
-def anchor(heading: str) -> str:
-    """GitHub's anchor of a heading made of words and spaces."""
-    return heading.lower().replace(" ", "-")
-
-
-def readme_block(
-    groups: list[Group],
-    protocol: str,
-    commit: str | None = None,
-    targets: dict[str, float] | None = None,
-    figure: str | None = None,
-    page: str = "docs/results.md",
-) -> str:
+def readme_block(results, protocol, commit, targets, figure=None, page="docs/results.md") -> str:
     """The README's Results block: the page's headline, linking to the page for the rest."""
-    targets = TARGETS if targets is None else targets
     intro = (
-        f"Generated by `python -m src.report` on {dt.date.today()} at commit "
-        f"{commit or git_commit()}. Average Euler error (rad) over the evaluated actions, "
-        f"{PROTOCOLS.get(protocol, protocol)}; budget, provenance, per-action tables, other "
-        f"protocols, MPJPE: [{page}]({page})."
+        f"Generated by `python -m src.report` on {dt.date.today()} at commit {commit}: average "
+        f"Euler error (rad), {PROTOCOLS.get(protocol, protocol)}; the rest in [{page}]({page})"
     )
-    lines = headline(
-        groups, protocol, targets, figure, f"{page}#{anchor(ABLATIONS_HEADING)}", intro
-    )
+    if any(g.ablation for g in results.groups) and headline_groups(results) != results.groups:
+        intro += f", Li et al.'s ablations under [Ablations]({page}#ablations)"
+    lines = headline(results, protocol, targets, [figure], None, intro + ".", False)
     return "\n".join(lines).rstrip("\n")
 
 
-def check_block(path: Path, name: str) -> str:
-    """The text of `path`, which must hold `<!-- name:start -->` and `<!-- name:end -->`."""
-    if not path.is_file():
-        raise SystemExit(f"error: {path} does not exist (it should hold the {name} markers)")
-    content = path.read_text()
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    if start not in content or end not in content:
-        raise SystemExit(f"error: {path} has no {start} ... {end} markers")
-    return content
-
-
-def replace_block(path: Path, name: str, text: str) -> None:
-    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`."""
-    content = check_block(path, name)
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    head, rest = content.split(start, 1)
-    _, tail = rest.split(end, 1)
-    path.write_text(f"{head}{start}\n{text}\n{end}{tail}")
+def figures(results: Results, protocol: str):
+    """(error against horizon, a panel per dataset: ours best with its ± band and last dotted,
+    each published same-set average dashed; mean validation error at 400 and 1000 ms against
+    iteration, a panel per headline experiment with curves, the published values as lines)."""
+    horizon: dict[str, list[Curve]] = {}
+    validation = []
+    for k, group in enumerate(headline_groups(results)):
+        name, panel = f"{group.label}, {group.iterations:,}", horizon.setdefault(group.dataset, [])
+        for s, style in (("best", "-"), ("last", ":")):
+            avg = results.average(group, protocol, s, judged=True)
+            std = {ms: v[1] for ms, v in avg.items() if v[2] > 1} or None
+            panel.append(
+                Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg.items()}, std, k, style)
+            )
+        refs = results.references(group)
+        for j, ref in enumerate(refs):
+            if same := results.same_set(group, ref):
+                panel.append(Curve(ref.name, same, None, k, "-." if j else "--"))
+        if len(curve := results.validation_means(group, protocol)) > 1:
+            # The validations average over every evaluated action: the published value too.
+            ref, evaluated = results.reference(group)[0], results.actions(group, judged=False)
+            same = same_set_average(ref.published, evaluated, HORIZONS) if ref else {}
+            lines = []
+            for c, ms in enumerate((400, 1000)):
+                lines.append(Curve(f"{ms} ms", {i: e[ms] for i, e in curve.items()}, color=c))
+                if ms in same:
+                    ends = dict.fromkeys((min(curve), max(curve)), same[ms])
+                    lines.append(Curve(f"{ms} ms, published", ends, color=c, style="--"))
+            validation.append((f"{name} iterations, mean over {len(group.runs)} seeds", lines))
+    where = PROTOCOLS.get(protocol, protocol)
+    first = line_panels([(f"{d}: {where}", c) for d, c in horizon.items()]) if horizon else None
+    return first, line_panels(validation, "iterations") if validation else None

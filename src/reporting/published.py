@@ -1,117 +1,81 @@
-"""The published result tables of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (1-2).
+"""The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2),
+and what the results page knows about each experiment's published references.
 
-published_results.csv is a byte copy of the project's shared docs/published_results.csv (see
-published_results.md there): one value per row, `paper,table,dataset,method,action,ms,value`,
-values as printed in the papers (slips included, N/A cells omitted). Some tables have an
-"average" row; it is the paper's own average, over that table's actions, not recomputed.
-
-Paper keys: "li2018", "martinez2017". Method keys, e.g. "conv_s2s" (Li's "Ours"), "rrnn"
+published_results.csv is a byte copy of the project's shared docs/published_results.csv: one
+value per row, `paper,table,dataset,method,action,ms,value`, as printed in the papers (slips
+included, N/A cells omitted); an "average" row is the paper's own, over that table's actions.
+Paper keys "li2018", "martinez2017"; method keys e.g. "conv_s2s" (Li's "Ours"), "rrnn"
 (Martinez's residual model retrained by Li), "zero_velocity", "residual_sup_ma".
 """
 
-import csv
+from __future__ import annotations
+
 import functools
-import io
 from importlib import resources
-from typing import NamedTuple
+
+import pandas as pd
 
 
 class ReportingError(ValueError):
     """A published-results lookup or a result table got inconsistent or unknown input."""
 
 
-class PublishedRow(NamedTuple):
-    paper: str
-    table: int
-    dataset: str
-    method: str
-    action: str
-    ms: int
-    value: float
-
-
 @functools.cache
-def _rows() -> tuple[PublishedRow, ...]:
-    text = resources.files("src.reporting").joinpath("published_results.csv").read_text()
-    reader = csv.DictReader(io.StringIO(text))
-    return tuple(
-        PublishedRow(
-            r["paper"],
-            int(r["table"]),
-            r["dataset"],
-            r["method"],
-            r["action"],
-            int(r["ms"]),
-            float(r["value"]),
-        )
-        for r in reader
-    )
+def published_frame() -> pd.DataFrame:
+    """Every published cell, one row each: paper, table, dataset, method, action, ms, value."""
+    with resources.files("src.reporting").joinpath("published_results.csv").open() as fh:
+        return pd.read_csv(fh)
 
 
-def load_published() -> list[PublishedRow]:
-    """All published numbers, one row per table cell, in file order."""
-    return list(_rows())
+def find_published(dataset: str, method: str) -> list[tuple[str, int]]:
+    """The (paper, table) pairs that report `method` on `dataset`, sorted; [] if none."""
+    f = published_frame()
+    rows = f[(f.dataset == dataset) & (f.method == method)]
+    return sorted({(str(p), int(t)) for p, t in zip(rows.paper, rows.table, strict=True)})
 
 
-def find_published(dataset: str, method_key: str) -> list[tuple[str, int]]:
-    """The (paper, table) pairs that report `method_key` on `dataset`, sorted; [] if none."""
-    return sorted(
-        {(r.paper, r.table) for r in _rows() if (r.dataset, r.method) == (dataset, method_key)}
-    )
+def published_datasets() -> frozenset[str]:
+    """The datasets the papers published numbers for ("h36m", "cmu")."""
+    return frozenset(published_frame().dataset)
 
 
 def published_table(
     paper: str, table: int | None, dataset: str, method: str
 ) -> dict[str, dict[int, float]]:
-    """Published values {action: {ms: value}} of one method in one paper.
-
-    table=None merges all tables of the paper that report the method on the dataset (e.g. Li's
-    Tables 1 and 2 together cover the 15 H3.6M actions). A cell reported with two different
-    values in the merged tables raises; pick the table then.
-    """
-    rows = [
-        r
-        for r in _rows()
-        if (r.paper, r.dataset, r.method) == (paper, dataset, method)
-        and (table is None or r.table == table)
-    ]
-    if not rows:
-        known = sorted({(r.paper, r.table, r.dataset, r.method) for r in _rows()})
-        listing = "; ".join(f"{p} T{t} {d} {m}" for p, t, d, m in known)
+    """Published values {action: {ms: value}} of one method in one paper; table=None merges
+    the paper's tables (Li's Tables 1 and 2 cover the 15 H3.6M actions). A cell printed with
+    two values in the merged tables raises: pick the table then."""
+    f = published_frame()
+    rows = f[(f.paper == paper) & (f.dataset == dataset) & (f.method == method)]
+    rows = rows if table is None else rows[rows.table == table]
+    if rows.empty:
+        known = f[["paper", "table", "dataset", "method"]].drop_duplicates()
+        listing = "; ".join(f"{p} T{t} {d} {m}" for p, t, d, m in known.itertuples(index=False))
         raise ReportingError(
             f"no published numbers for paper={paper!r} table={table!r} dataset={dataset!r} "
             f"method={method!r}. Available: {listing}"
         )
+    twice = rows.groupby(["action", "ms"]).value.nunique()
+    if (twice > 1).any():
+        action, ms = twice[twice > 1].index[0]
+        raise ReportingError(
+            f"{paper} {method} {dataset}: {action} at {ms} ms has two values in its tables "
+            f"{sorted(set(rows.table))}; pass table= to choose"
+        )
     out: dict[str, dict[int, float]] = {}
-    for r in rows:
-        cells = out.setdefault(r.action, {})
-        if r.ms in cells and cells[r.ms] != r.value:
-            raise ReportingError(
-                f"{paper} {method} {dataset}: {r.action} at {r.ms} ms is {cells[r.ms]} in one "
-                f"table and {r.value} in table {r.table}; pass table= to choose"
-            )
-        cells[r.ms] = r.value
+    for action, ms, value in zip(rows.action, rows.ms, rows.value, strict=True):
+        out.setdefault(action, {})[int(ms)] = float(value)
     return out
 
 
-def published_datasets() -> frozenset[str]:
-    """The datasets the papers published numbers for ("h36m", "cmu")."""
-    return frozenset(r.dataset for r in _rows())
-
-
 def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
-    """(published values {action: {ms: value}}, label) of a model config's `published` entry,
-    for results computed on `dataset`; (None, None) where no paper has numbers for it.
-
-    `ref` is {paper, method[, table]} or one such entry per dataset ({h36m: {...}, cmu: {...}}).
-    `dataset` is the name of the data the results were computed on (the data config's `name`),
-    so the synthetic data, although in the H3.6M format, never gets the H3.6M numbers: a
-    published value stands only beside a result on the dataset it was published for.
-    """
+    """(values {action: {ms: value}}, "<paper> <method>") of a model config's `published` entry
+    ({paper, method[, table]}, or one such entry per dataset) for results on `dataset`;
+    (None, None) where no paper has numbers for it. Synthetic data, in the H3.6M format, never
+    gets H3.6M's numbers: a published value stands only beside results on its own dataset."""
     if not ref or dataset not in published_datasets():
         return None, None
-    if dataset in ref:
-        ref = ref[dataset]
+    ref = ref.get(dataset, ref)
     if not isinstance(ref, dict) or "paper" not in ref:
         return None, None
     try:
@@ -119,18 +83,6 @@ def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | No
     except ReportingError:
         return None, None
     return table, f"{ref['paper']} {ref['method']}"
-
-
-def published_beside(table: dict, dataset: str) -> dict | None:
-    """The `published` values of a result table (`ResultTable.to_dict()`, as in results.json),
-    or None when the results were computed on a dataset no paper published numbers for.
-
-    For code that prints tables from stored results (src.report): a results.json written before
-    the published values were tied to the dataset may carry H3.6M numbers beside synthetic-data
-    results; this drops them."""
-    if dataset not in published_datasets():
-        return None
-    return table.get("published")
 
 
 # Cells the shared notes (docs/published_results.md) call slips of the paper, kept as printed:
@@ -156,10 +108,41 @@ KNOWN_SLIPS: dict[tuple[str, str], dict[str, str]] = {
 
 
 def known_slips(label: str | None, actions: list[str]) -> dict[str, str]:
-    """{action: why} for the `actions` whose published values under `label` ("<paper> <method>",
-    as published_for returns it) include a known slip of the paper."""
-    if not label or " " not in label:
-        return {}
-    paper, method = label.split(" ", 1)
-    slips = KNOWN_SLIPS.get((paper, method), {})
+    """{action: why} for the `actions` whose published values under `label` ("<paper>
+    <method>") include a known slip of the paper."""
+    slips = KNOWN_SLIPS.get(tuple(label.split(" ", 1)), {}) if label and " " in label else {}
     return {a: slips[a] for a in actions if a in slips}
+
+
+PAPERS = {"li2018": "Li et al.", "martinez2017": "Martinez et al."}
+# Published numbers of experiments whose model config names the full model's: the ablations
+# of Li's Tables 5 and 6 (averages only), and Figure 4's rows, printed without numbers (None).
+EXPERIMENT_PUBLISHED: dict[str, dict | None] = {
+    "li2018_h36m_no_long_term": {
+        "paper": "li2018",
+        "table": 5,
+        "method": "conv_s2s_without_long_term",
+    },
+    "li2018_h36m_kernel_4x4": {"paper": "li2018", "table": 6, "method": "kernel_4x4"},
+    "li2018_h36m_kernel_7x2": {"paper": "li2018", "table": 6, "method": "kernel_7x2"},
+    **{f"li2018_h36m_{c}": None for c in ("C5", "C10", "C5_no_adv", "C10_no_adv", "C20_no_adv")},
+}
+# Other papers' numbers for the same model on the same data: Li et al. retrained Martinez et
+# al.'s residual GRU with Martinez's code (row "RRNN" of their Tables 1-2).
+ALSO_PUBLISHED: dict[tuple[str, str], list[dict]] = {
+    ("martinez2017 residual_sup_ma", "h36m"): [
+        {
+            "paper": "li2018",
+            "method": "rrnn",
+            "about": "Li et al.'s retraining of the same model, row RRNN of their Tables 1-2",
+        }
+    ],
+}
+# What was compared with an experiment's reference code, for the diagnosis of a row that misses
+# its target (facts: the shared docs/protocol.md).
+REFERENCE_CODE_CHECKED: dict[str, str] = {
+    "li2018_cmu": "Every setting was checked against Li et al.'s reference code: the actions "
+    "trained together, iterations, batch, learning rate and its decay, window lengths, the "
+    "dimensions kept, the normalisation rule, VALID padding, test-window selection and seed, "
+    "the Euler error"
+}

@@ -1,120 +1,115 @@
-"""Finding finished training runs and loading each into a record (src.report); the scored
-predictions files beside the baselines. Grouping the records: src/reporting/groups.py.
+"""Where src.report's runs come from: finished run folders (config.yaml beside checkpoints/ or
+summary.yaml, src.train's layout), which src.report evaluates as src.eval does; run records, a
+run's evaluations kept as one small JSON file (docs/runs); and scored predictions files.
 
-A run folder holds config.yaml beside checkpoints/ or summary.yaml (src.train's layout).
+Each run is evaluated twice on each protocol: its best checkpoint (lowest validation error;
+validation runs on the test windows, as in both reference implementations, so this selection
+uses test information, protocol section 8) and its last (no test information). A record holds
+what the page needs of an evaluated run (config, seed, iterations, provenance, results,
+validation curve) and no checkpoint, so a page can grow over several machines: a report
+evaluates only the runs it is given and reads the others from their records. A record is named
+`<run_name>_seed<seed>_<config hash>.json`: the same run evaluated again replaces it.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import re
 from pathlib import Path
 
 import yaml
 
-from src.lit.factory import PROJECT_ROOT
+from src.lit.factory import PROJECT_ROOT, ConfigError
+from src.reporting.groups import identity
+from src.reporting.tables import read_results
 from src.reporting.tensorboard import validation_curve
-from src.results import read_results
+
+SELECTIONS = ("best", "last")
+ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
+RECORD_FORMAT = 1
+RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
+KEPT = "finished wall_time_s train_time_s commit device missing_files train_missing_files "
+KEPT = (KEPT + "archive_sha256 validations").split()
 
 
-# ---------------------------------------------------------------------------- finding runs
-def is_run(folder: Path) -> bool:
-    """A training run's folder: config.yaml beside checkpoints/ or summary.yaml (a multirun's
-    .hydra/ folders also hold a config.yaml, but neither of the others)."""
+def _is_run(folder: Path) -> bool:
+    # A multirun's .hydra/ folders hold a config.yaml too, but neither of the others.
     return (folder / "config.yaml").is_file() and (
         (folder / "checkpoints").is_dir() or (folder / "summary.yaml").is_file()
     )
 
 
-def _natural(path: Path) -> list:
-    """Sort key ordering `2_x` before `10_x` (a multirun's job numbers)."""
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
-
-
 def discover_runs(paths: list[Path]) -> list[Path]:
-    """The run folders given, or found under the folders given, in sweep order; each once."""
+    """The run folders given, or found under the folders given, in sweep order (job 2 before
+    job 10); each once."""
     runs: list[Path] = []
-    for path in paths:
+    for path in map(Path, paths):
         path = path.resolve()
         if not path.exists():
-            raise SystemExit(f"error: {path} does not exist")
-        if is_run(path):
-            found = [path]
-        else:
-            found = sorted(
+            raise ConfigError(f"runs: {path} does not exist")
+        found = (
+            [path]
+            if _is_run(path)
+            else sorted(
                 (
                     p.parent
                     for p in path.rglob("config.yaml")
-                    if ".hydra" not in p.parts and is_run(p.parent)
+                    if ".hydra" not in p.parts and _is_run(p.parent)
                 ),
-                key=_natural,
+                key=lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))],
             )
-            if not found:
-                raise SystemExit(
-                    f"error: no training run under {path}: a run folder holds config.yaml and "
-                    "checkpoints/ (is the run finished, and is this its folder?)"
-                )
+        )
+        if not found:
+            raise ConfigError(
+                f"runs: no training run under {path}: a run folder holds config.yaml and "
+                "checkpoints/ (is the run finished, and is this its folder?)"
+            )
         runs += [r for r in found if r not in runs]
     return runs
 
 
 def display_root(runs: list[Path]) -> Path:
-    """The folder the page names run folders relative to, so that it shows no machine's
-    absolute paths: the project for runs inside it (outputs/train/runs/...), else the runs'
-    common folder, raised until each run shows as two parts at least (<run_name>/<time> in
-    src.train's layout): for /x/out/<job>/train/runs/<name>/<time>, /x/out; for one run, or the
-    segments of one resumed run, the run's <name> folder's parent."""
+    """The folder the page names run folders relative to, so that it shows no machine's paths:
+    the project for runs inside it, else the runs' common folder, raised until each run shows
+    as two parts at least (<run_name>/<time>: two experiments started in the same second must
+    not read alike)."""
     runs = [Path(r).resolve() for r in runs]
-    if not runs:
-        return PROJECT_ROOT
     if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
         return PROJECT_ROOT
     root = Path(os.path.commonpath(runs))
-    # Not the time alone: two experiments' runs started in the same second would read alike.
     while root.parent != root and any(len(r.relative_to(root).parts) < 2 for r in runs):
         root = root.parent
     return root
 
 
-def _load_yaml(path: Path) -> dict | None:
-    return yaml.safe_load(path.read_text()) if path.is_file() else None
-
-
 def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
-    """({"best": path, "last": path}, notes) for a run folder.
-
-    best is summary.yaml's best_checkpoint: the lowest validation error of the whole run,
-    resumes included (it may lie in the folder of the run before a resume). When the run has
-    no summary (unfinished or killed) or that file is gone, the run's own best-*.ckpt (the
-    newest) stands in, and the notes say so. last is checkpoints/last.ckpt, the final iteration.
-    """
-    folder = run / "checkpoints"
-    notes: list[str] = []
-    summary = _load_yaml(run / "summary.yaml") or {}
-    last = folder / "last.ckpt"
-    best = None
-    recorded = summary.get("best_checkpoint")
-    if recorded:
-        recorded = Path(recorded)
-        # As written; relative to the project; or this folder's file of that name (a run folder
-        # that was moved or copied).
-        for candidate in (recorded, PROJECT_ROOT / recorded, folder / recorded.name):
-            if candidate.is_file():
-                best = candidate
-                break
-        else:
-            notes.append(f"best checkpoint {recorded.name} of summary.yaml not found")
+    """({"best": path, "last": path}, notes). best is summary.yaml's best_checkpoint, the
+    lowest validation error of the whole run, resumes included (it may lie in an earlier
+    segment's folder; in a moved folder it is found by its name); without it, the folder's
+    newest best-*.ckpt, and the notes say so. last is checkpoints/last.ckpt."""
+    folder, notes, best = run / "checkpoints", [], None
+    summary = (
+        yaml.safe_load((run / "summary.yaml").read_text())
+        if (run / "summary.yaml").is_file()
+        else {}
+    )
+    if summary.get("best_checkpoint"):
+        named = Path(summary["best_checkpoint"])
+        best = next(
+            (c for c in (named, PROJECT_ROOT / named, folder / named.name) if c.is_file()), None
+        )
+        if best is None:
+            notes.append(f"best checkpoint {named.name} of summary.yaml not found")
     elif not summary:
         notes.append("no summary.yaml (run unfinished or killed?)")
-    if best is None:
-        local = sorted(folder.glob("best-*.ckpt"), key=lambda p: p.stat().st_mtime)
-        if local:
-            best = local[-1]
-            notes.append(f"best taken as this folder's {best.name}")
-    if not last.is_file():
-        last = None
+    if best is None and (local := sorted(folder.glob("best-*.ckpt"), key=os.path.getmtime)):
+        best = local[-1]
+        notes.append(f"best taken as this folder's {best.name}")
+    last = folder / "last.ckpt" if (folder / "last.ckpt").is_file() else None
     if best is None and last is None:
-        raise SystemExit(f"error: {run} has no checkpoints (is it a finished training run?)")
+        raise ConfigError(f"runs: {run} has no checkpoints (is it a finished training run?)")
     if best is None:
         notes.append("no best checkpoint: best is last.ckpt")
     if last is None:
@@ -123,12 +118,8 @@ def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
 
 
 def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
-    """The checkpoint's training iteration, and the files the run's data copy lacked when it
-    trained (training and test files; an evaluation of the checkpoint sees only the test
-    files). One read of the file for both.
-
-    The report's only direct use of the checkpoint loading API: the evaluations load their
-    checkpoints through src.eval."""
+    """The checkpoint's training iteration, and the files its data copy lacked when it trained
+    (an evaluation sees only the test files). The report's one direct read of a checkpoint."""
     from src.lit.checkpoints import read_checkpoint
 
     ckpt = read_checkpoint(path)
@@ -137,42 +128,165 @@ def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
     return None if iteration is None else int(iteration), missing
 
 
-def load_run(path: Path, root: Path | None = None) -> dict:
-    """The record of one run folder: its config, checkpoints and their facts, its summary.
-    `path` in the record is relative to `root` (display_root) when given."""
-    config = _load_yaml(path / "config.yaml")
-    # Runs of older versions may lack run_name: their folder is runs/<name>/<time>.
-    config.setdefault("run_name", path.parent.name)
-    summary = _load_yaml(path / "summary.yaml") or {}
+def load_run(path: Path, root: Path) -> dict:
+    """One run folder as src.report's run dict; paths shown relative to `root`."""
+    config = yaml.safe_load((path / "config.yaml").read_text())
+    summary = (
+        yaml.safe_load((path / "summary.yaml").read_text())
+        if (path / "summary.yaml").is_file()
+        else {}
+    )
     checkpoints, notes = find_checkpoints(path)
     facts = {s: checkpoint_facts(p) for s, p in checkpoints.items()}
-    iterations_of = {s: iteration for s, (iteration, _) in facts.items()}
-    root = root or PROJECT_ROOT
 
     def shown(p: Path) -> str:
         return str(p.relative_to(root) if p.is_relative_to(root) else p)
 
     return {
         "path": shown(path),
-        # Only to tell a resumed run's earlier segments (their ckpt_path) apart from copies.
-        "folder": str(path.resolve()),
-        # A resumed run's best checkpoint may lie in an earlier segment's folder. Only those
-        # under `root`: a record names no absolute path.
+        "folder": str(path.resolve()),  # to tell a resumed run's earlier segments from copies
+        # A resumed run's best checkpoint may lie in an earlier segment's folder; only those
+        # under `root`, as a record names no absolute path.
         "shown_checkpoints": {
             str(p): shown(p) for p in checkpoints.values() if p.is_relative_to(root)
         },
         "config": config,
         "seed": config.get("seed"),
         "checkpoints": checkpoints,
-        "iterations_of": iterations_of,
-        "iterations": summary.get("iterations", iterations_of["last"]),
+        "iterations_of": {s: iteration for s, (iteration, _) in facts.items()},
+        "iterations": summary.get("iterations", facts["last"][0]),
         "finished": bool(summary),
         "notes": notes,
         "train_missing_files": facts["last"][1],
-        # This folder's own validations; a resumed run gets its earlier segments' in groups.py.
-        "validations": validation_curve(path),
+        "validations": validation_curve(path),  # this segment's; groups.py joins a resume's
         **{k: summary.get(k) for k in ("wall_time_s", "train_time_s", "commit", "device")},
     }
+
+
+def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list[dict]:
+    """The run folders given (or found under them) and the runs recorded in `records`; a
+    folder given again replaces its record."""
+    folders = discover_runs(paths)
+    root = display_root(folders) if folders else PROJECT_ROOT
+    runs = [load_run(folder, root) for folder in folders]
+    given = [(record_name(r), Path(r["path"]).parts) for r in runs]
+
+    def same_run(record: dict) -> bool:  # shown paths end alike: each is relative to its root
+        mine = Path(record["path"]).parts
+        return any(
+            name == record_name(record)
+            and mine[-min(len(mine), len(theirs)) :] == theirs[-min(len(mine), len(theirs)) :]
+            for name, theirs in given
+        )
+
+    recorded = read_records(records, protocols) if records else []
+    return runs + [r for r in recorded if not same_run(r)]
+
+
+# ------------------------------------------------------------------------------ records
+def record_name(run: dict) -> str:
+    config = run["config"]
+    ident = json.dumps(
+        [config.get("run_name"), config["data"]["name"], identity(config)], sort_keys=True
+    )
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(config.get("run_name", "run")))
+    return f"{name}_seed{run['seed']}_{hashlib.sha256(ident.encode()).hexdigest()[:10]}.json"
+
+
+def _portable(value, run_path: str, shown: dict[str, str]):
+    """`value` without a machine's absolute paths: a checkpoint as the page shows it (else
+    inside the run's shown folder), any other absolute path (an override's) by its last part."""
+    if isinstance(value, dict):
+        out = {k: _portable(v, run_path, shown) for k, v in value.items()}
+        if isinstance(ckpt := value.get("checkpoint"), str):
+            out["checkpoint"] = shown.get(ckpt, f"{run_path}/checkpoints/{Path(ckpt).name}")
+        return out
+    if isinstance(value, list):
+        return [_portable(v, run_path, shown) for v in value]
+    if isinstance(value, str):
+        key, eq, path = value.rpartition("=")
+        if Path(path).is_absolute():
+            return f"{key}{eq}.../{Path(path).name}"
+    return value
+
+
+def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
+    """Write the evaluated run's record into `folder`; returns its path."""
+    shown = run.get("shown_checkpoints", {})
+    record = {
+        "format": RECORD_FORMAT,
+        "evaluated": {"commit": commit, "date": date},
+        **{k: _portable(run[k], run["path"], shown) for k in RECORD_KEYS},
+        "notes": run.get("notes", []),
+        **{k: run[k] for k in KEPT if k in run},
+    }
+    path = Path(folder) / record_name(run)
+    path.write_text(json.dumps(record, indent=1) + "\n")
+    return path
+
+
+def read_records(folder: Path, protocols: list[str]) -> list[dict]:
+    """The runs recorded in `folder`, evaluated, each with a note naming its record. Refuses,
+    naming the file and the fix, a file that is not a record or lacks one of `protocols`."""
+    if not Path(folder).is_dir():
+        raise ConfigError(
+            f"records={folder} is not a folder; give the folder of run records (docs/runs holds "
+            "the project's), or create it to start one"
+        )
+    runs = []
+    for path in sorted(Path(folder).glob("*.json")):
+        try:
+            record = json.loads(path.read_text())
+        except json.JSONDecodeError as err:
+            raise ConfigError(f"{path} is not valid JSON ({err}): restore or remove it") from None
+        lacking = [k for k in ("format", *RECORD_KEYS) if k not in record]
+        if not isinstance(record, dict) or lacking:
+            raise ConfigError(
+                f"{path} is not a run record (no {', '.join(lacking)}); only files written by "
+                "`src.report records=...` belong in that folder"
+            )
+        if record["format"] != RECORD_FORMAT:
+            raise ConfigError(
+                f"{path} is a record of format {record['format']}, this version reads format "
+                f"{RECORD_FORMAT}: evaluate its run again"
+            )
+        for selection in SELECTIONS:
+            have = record["results"].get(selection, {})
+            if missing := [p for p in protocols if p not in have]:
+                raise ConfigError(
+                    f"{path} has no {selection}-checkpoint results for protocol "
+                    f"{', '.join(missing)}: give protocols=[{','.join(have)}], or evaluate its "
+                    "run folder again"
+                )
+        evaluated = record["evaluated"]
+        record["notes"] = [
+            *record["notes"],
+            f"record {path.name}: evaluated at {evaluated['commit']} on {evaluated['date']}",
+        ]
+        # JSON's keys are text: iterations and horizons again.
+        record["validations"] = {
+            int(i): {int(ms): v for ms, v in e.items()}
+            for i, e in (record.get("validations") or {}).items()
+        }
+        runs.append({**record, "recorded": True})
+    return runs
+
+
+def mark_archives(entries: list[dict], archives: Path | None) -> None:
+    """Set each entry's `archive_sha256` ("h3.6m.zip 1a2b…") where its dataset's archive is in
+    the archive folder; each archive is read once."""
+    hashes: dict[str, str] = {}
+    for entry in entries:
+        name = ARCHIVES.get(entry.get("dataset") or entry["config"]["data"]["name"])
+        if archives is None or not name or not (archives / name).exists():
+            continue
+        if name not in hashes:
+            digest = hashlib.sha256()
+            with (archives / name).open("rb") as fh:
+                while block := fh.read(1 << 20):
+                    digest.update(block)
+            hashes[name] = f"{name} {digest.hexdigest()[:16]}…"
+        entry["archive_sha256"] = hashes[name]
 
 
 def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
@@ -180,12 +294,9 @@ def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
     predictions=...`): one per model and dataset, from the results.json of each protocol."""
     entries: dict[tuple[str, str], dict] = {}
     for path in paths:
-        try:
-            result = read_results(path)
-        except ValueError as err:  # read_results' ConfigError: not a results.json
-            raise SystemExit(f"error: --scored {err}") from None
+        result = read_results(path)
         prov = result.get("provenance", {})
-        label, dataset = prov.get("model", path.parent.name), prov.get("dataset", "?")
+        label, dataset = prov.get("model", Path(path).parent.name), prov.get("dataset", "?")
         entry = entries.setdefault(
             (label, dataset),
             {"label": label, "dataset": dataset, "kind": "predictions", "results": {}},
@@ -193,11 +304,10 @@ def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
         entry.update(commit=prov.get("commit", "-"), missing_files=prov.get("missing_files", []))
         entry["results"][prov.get("eval_protocol", "srnn")] = result
     for entry in entries.values():
-        lacking = [p for p in protocols if p not in entry["results"]]
-        if lacking:
-            raise SystemExit(
-                f"error: --scored {entry['label']} ({entry['dataset']}) has no results for "
-                f"protocol {', '.join(lacking)}: score its predictions with protocol="
-                f"{lacking[0]} too, or pass --protocols {' '.join(entry['results'])}"
+        if lacking := [p for p in protocols if p not in entry["results"]]:
+            raise ConfigError(
+                f"scored: {entry['label']} ({entry['dataset']}) has no results for protocol "
+                f"{', '.join(lacking)}: score its predictions with protocol={lacking[0]} too, or "
+                f"give protocols=[{','.join(entry['results'])}]"
             )
     return list(entries.values())

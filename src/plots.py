@@ -1,15 +1,9 @@
-"""Pictures of motion: 3D stick figures, frame strips, animations, error-versus-horizon curves,
-and the rows of one evaluation window (`window_rows`) that src.visualize and the TensorBoard
-frame-strip callback draw.
+"""Pictures of motion (3D stick figures, frame strips, animations), the rows of one evaluation
+window that src.visualize and the TensorBoard frame-strip callback draw, and error curves.
 
-Poses are joint positions (J, 3) from `src.metrics.kinematics.forward_kinematics` after
-`yz_swap`, so the third coordinate points up (matplotlib's 3D z axis) and the figure stands.
-A motion is (T, J, 3): the observed frames first, then the future ones. Observed frames are
-drawn in grey for every row, future frames in the row's colour (ground truth green, prediction
-red, zero-velocity blue), so one sees where the model takes over.
-
-Figures are built with `matplotlib.figure.Figure` (no pyplot), which renders with Agg and needs
-no display; in a notebook they show with `display(fig)`.
+Poses are joint positions (J, 3) after `yz_swap` (z up); a motion is (T, J, 3), observed frames
+first, drawn grey, then the future in the row's colour. Figures are `matplotlib.figure.Figure`
+(no pyplot): they render with Agg, without a display; a notebook shows them with display(fig).
 """
 
 from __future__ import annotations
@@ -30,12 +24,11 @@ from src.models.baselines import ZeroVelocity
 
 # (right side and spine, left side): two shades tell the limbs apart.
 OBSERVED = ("#303030", "#9a9a9a")
+VIEW = (12.0, -70.0)  # elevation and azimuth of the camera, degrees
 PALETTE = {
     "green": ("#1a7f37", "#7fd18b"),
     "red": ("#c62828", "#f28b82"),
     "blue": ("#1f5fb4", "#8ab4f8"),
-    "orange": ("#d9730d", "#f6b26b"),
-    "purple": ("#6a3d9a", "#cab2d6"),
 }
 
 
@@ -90,12 +83,9 @@ def predict_window(dm: MotionDataModule, module, index: int) -> dict:
         pred = module(observed, T, action=item["action"][None].to(module.device))[0]
     finally:
         module.train(was_training)
-    norm = module.normalizer
-    return {
-        "observed": norm.unnormalize(observed[0]).cpu(),
-        "future": norm.unnormalize(item["future"].to(module.device)).cpu(),
-        "prediction": norm.unnormalize(pred).cpu(),
-    }
+    future = item["future"].to(module.device)
+    frames = {"observed": observed[0], "future": future, "prediction": pred}
+    return {k: module.normalizer.unnormalize(v).cpu() for k, v in frames.items()}
 
 
 def data_name(dm: MotionDataModule) -> str:
@@ -105,14 +95,9 @@ def data_name(dm: MotionDataModule) -> str:
 
 
 def window_rows(
-    dm: MotionDataModule,
-    module,
-    index: int,
-    baseline: bool = True,
-    observed_shown: int = 25,
-    name: str | None = None,
-    dataset: str | None = None,
-) -> tuple[list[PoseRow], int, str]:
+    dm: MotionDataModule, module, index: int, baseline: bool = True, observed_shown: int = 25,
+    name: str | None = None, dataset: str | None = None
+) -> tuple[list[PoseRow], int, str]:  # fmt: skip
     """(rows, n_observed, description) of evaluation window `index` (into `dm.eval_windows`)
     for `frame_strip` / `animate`: the prediction of `module` (a MotionPredictor), the ground
     truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
@@ -124,16 +109,13 @@ def window_rows(
     skeleton = Skeleton.load(module.dataset)
     name = name or module.run_info.get("config", {}).get("model", {}).get("name")
     name = name or type(module.net).__name__
-    rows = [
-        PoseRow(
-            f"prediction ({name})", positions(torch.cat([obs, frames["prediction"]]), skeleton)
-        ),
-        PoseRow("ground truth", positions(torch.cat([obs, frames["future"]]), skeleton), "green"),
-    ]
+    shown = {"prediction": (f"prediction ({name})", "red"), "future": ("ground truth", "green")}
     if baseline and not isinstance(module.net, ZeroVelocity):
         # Zero-velocity repeats the last observed frame (protocol §7.1).
-        still = obs[-1:].expand(T, -1)
-        rows.append(PoseRow("zero-velocity", positions(torch.cat([obs, still]), skeleton), "blue"))
+        frames["still"] = obs[-1:].expand(T, -1)
+        shown["still"] = ("zero-velocity", "blue")
+    rows = [PoseRow(label, positions(torch.cat([obs, frames[k]]), skeleton), color)
+            for k, (label, color) in shown.items()]  # fmt: skip
     w = dm.eval_windows[index]
     window = sum(v.action == w.action for v in dm.eval_windows[:index])  # among its action's
     what = (
@@ -154,9 +136,7 @@ def _limits(motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 
 def _setup_axes(ax, box: tuple[np.ndarray, np.ndarray], elev: float, azim: float) -> None:
     lo, hi = box
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
     # Box sides proportional to the data ranges: equal scale on all axes, no empty cube.
     ax.set_box_aspect(tuple(hi - lo), zoom=1.35)
     ax.set_proj_type("ortho")
@@ -181,12 +161,9 @@ def draw_skeleton(
     sides: np.ndarray | None = None,
     linewidth: float = 2.0,
 ) -> list:
-    """Draw one pose (J, 3) on a 3D axes, a line from each bone's parent joint to its child.
-
-    `colors` is a (right side and spine, left side) pair or one colour; `sides` (one 0/1 per
-    bone, see `bone_sides`) says which. Returns the two Line3D objects (right, left); each holds
-    its bones' segments separated by NaN, see `_segments`, and an animation moves them with
-    `set_data_3d`."""
+    """Draw one pose (J, 3) on a 3D axes, a line per bone, in `colors` (a (right and spine,
+    left) pair or one colour; `sides`, one 0/1 per bone, says which). Returns the two Line3D
+    objects (right, left), which an animation moves with `set_data_3d`."""
     pose = np.asarray(pose)
     if pose.ndim != 2 or pose.shape[1] != 3:
         raise ValueError(f"pose must be (J, 3) joint positions, got shape {pose.shape}")
@@ -206,8 +183,8 @@ def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3
     predicted frame (when step divides the future length - 1) and the last one are shown."""
     if not 0 < n_observed < n_total or step < 1 or n_before < 0:
         raise ValueError(
-            f"need 0 < n_observed ({n_observed}) < n_total ({n_total}), step >= 1 ({step}) "
-            f"and n_before >= 0 ({n_before})"
+            f"need 0 < n_observed < n_total, step >= 1, n_before >= 0: got "
+            f"{n_observed}, {n_total}, {step}, {n_before}"
         )
     before = [n_observed - 1 - step * k for k in range(n_before)]
     after = list(range(n_total - 1, n_observed - 1, -step))
@@ -231,17 +208,9 @@ def _check_rows(rows: Sequence[PoseRow], n_observed: int) -> int:
 
 
 def frame_strip(
-    rows: Sequence[PoseRow],
-    skeleton: Skeleton,
-    n_observed: int,
-    frame_ms: float = 40,
-    step: int = 3,
-    n_before: int = 3,
-    title: str | None = None,
-    elev: float = 12.0,
-    azim: float = -70.0,
-    cell: float = 1.15,
-) -> Figure:
+    rows: Sequence[PoseRow], skeleton: Skeleton, n_observed: int, frame_ms: float = 40,
+    step: int = 3, n_before: int = 3, title: str | None = None, view=VIEW, cell: float = 1.15
+) -> Figure:  # fmt: skip
     """A grid of poses in the manner of Li et al. (2018) Figure 3: one row per motion (e.g.
     prediction, ground truth underneath, zero-velocity), the last observed frames in grey then
     future frames in colour; column titles give the time from the last observed frame."""
@@ -255,15 +224,15 @@ def frame_strip(
     for r, row in enumerate(rows):
         for c, t in enumerate(frames):
             ax = fig.add_subplot(len(rows), len(frames), r * len(frames) + c + 1, projection="3d")
-            _setup_axes(ax, box, elev, azim)
+            _setup_axes(ax, box, *view)
             colors = OBSERVED if t < n_observed else PALETTE[row.color]
             draw_skeleton(ax, row.positions[t], bones, colors, sides, linewidth=1.4)
             if r == 0:
                 ms = (t - (n_observed - 1)) * frame_ms
                 ax.set_title(f"{ms:+.0f} ms" if ms else "0 ms", fontsize=8, pad=0)
         y = 0.86 - (r + 0.5) * 0.86 / len(rows)
-        fig.text(0.01, y, row.label, rotation=90, va="center", ha="left", fontsize=9,
-                 color=PALETTE[row.color][0])  # fmt: skip
+        color = PALETTE[row.color][0]
+        fig.text(0.01, y, row.label, rotation=90, va="center", fontsize=9, color=color)
     fig.suptitle(
         (title + "\n" if title else "") + "grey: observed, colour: future (time from the "
         "last observed frame)",
@@ -273,16 +242,9 @@ def frame_strip(
 
 
 def animate(
-    rows: Sequence[PoseRow],
-    skeleton: Skeleton,
-    n_observed: int,
-    frame_ms: float = 40,
-    title: str | None = None,
-    elev: float = 12.0,
-    azim: float = -70.0,
-    size: float = 3.0,
-    dpi: int = 80,
-) -> FuncAnimation:
+    rows: Sequence[PoseRow], skeleton: Skeleton, n_observed: int, frame_ms: float = 40,
+    title: str | None = None, view=VIEW, size: float = 3.0, dpi: int = 80
+) -> FuncAnimation:  # fmt: skip
     """The rows side by side as 3D stick figures, one animation frame per motion frame.
 
     Observed frames are grey; from the first future frame on each row takes its own colour.
@@ -298,7 +260,7 @@ def animate(
     all_lines = []
     for i, row in enumerate(rows):
         ax = fig.add_subplot(1, len(rows), i + 1, projection="3d")
-        _setup_axes(ax, box, elev, azim)
+        _setup_axes(ax, box, *view)
         ax.set_title(row.label, color=PALETTE[row.color][0], fontsize=10)
         all_lines.append(draw_skeleton(ax, row.positions[0], bones, OBSERVED, sides))
     clock = fig.suptitle("", fontsize=9)
@@ -320,78 +282,62 @@ def animate(
     return FuncAnimation(fig, update, frames=range(T), interval=frame_ms, blit=False)
 
 
+class Curve(NamedTuple):
+    """One line of a panel: {x: y}, an optional ± band {x: std}, a colour index (lines of one
+    experiment share it; None: the next colour) and a matplotlib line style."""
+
+    label: str
+    values: dict
+    std: dict | None = None
+    color: int | None = None
+    style: str = "-"
+
+
+def line_panels(
+    panels: Sequence[tuple[str | None, Sequence[Curve]]],
+    xlabel: str = "prediction horizon (ms)",
+    ylabel: str = "Euler-angle error (rad)",
+) -> Figure:
+    """Error curves, one panel per (title, curves) side by side, as Li et al. (2018) Figure 4;
+    a curve with `std` gets a shaded ± band. The x values of the curves are the ticks."""
+    if not panels or not all(curves for _, curves in panels):
+        raise ValueError("line_panels: a panel without curves")
+    fig = Figure(figsize=(5.0 * len(panels) + 1.0, 4.0), dpi=100)
+    for k, (title, curves) in enumerate(panels):
+        ax = fig.add_subplot(1, len(panels), k + 1)
+        ticks: set[int] = set()
+        for n, curve in enumerate(curves):
+            if not curve.values:
+                raise ValueError(f"curve {curve.label!r} has no values")
+            xs = sorted(int(x) for x in curve.values)
+            ys = np.array([curve.values.get(x, curve.values.get(str(x))) for x in xs])
+            ticks.update(xs)
+            color = f"C{(n if curve.color is None else curve.color) % 10}"
+            ax.plot(xs, ys, curve.style, marker="o", ms=3, color=color, label=curve.label)
+            if curve.std:
+                std = np.array([curve.std.get(x, 0.0) for x in xs])
+                ax.fill_between(xs, ys - std, ys + std, color=color, alpha=0.15, lw=0)
+        if len(ticks) <= 12:
+            ax.set_xticks(sorted(ticks))
+        ax.set(xlabel=xlabel, ylabel=ylabel)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        if title:  # a long protocol name would run past a 5-inch panel and be cut off
+            ax.set_title(textwrap.fill(title, 48), fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
 def error_vs_horizon(
-    results: Sequence[tuple[str, dict[int, float]]],
+    results: Sequence[tuple[str, dict]],
     title: str | None = None,
     ylabel: str = "Euler-angle error (rad)",
     dashed: Sequence[str] = (),
 ) -> Figure:
-    """Error against prediction horizon, one line per (label, {ms: value}) in `results`, as in
-    Li et al. (2018) Figure 4. Labels listed in `dashed` (e.g. published curves) are dashed."""
+    """One panel of error against horizon, a line per (label, {ms: value}); the labels in
+    `dashed` (published curves) dashed."""
     if not results:
         raise ValueError("error_vs_horizon: no curves given")
-    fig = Figure(figsize=(6.0, 4.0), dpi=100)
-    ax = fig.add_subplot(1, 1, 1)
-    ticks: set[int] = set()
-    for label, curve in results:
-        if not curve:
-            raise ValueError(f"curve {label!r} has no values")
-        ms = sorted(int(k) for k in curve)
-        ticks.update(ms)
-        values = [curve[k] if k in curve else curve[str(k)] for k in ms]
-        ax.plot(ms, values, marker="o", ms=4, label=label, ls="--" if label in dashed else "-")
-    ax.set_xticks(sorted(ticks))
-    ax.set_xlabel("prediction horizon (ms)")
-    ax.set_ylabel(ylabel)
-    ax.set_ylim(bottom=0)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    if title:
-        # A long protocol name would run past a 5-inch panel and be cut off.
-        ax.set_title(textwrap.fill(title, 48), fontsize=10)
-    fig.tight_layout()
-    return fig
-
-
-class Curve(NamedTuple):
-    """One line of a horizon panel: {ms: value}, an optional ± band {ms: std}, a colour index
-    (lines of one experiment share it) and a matplotlib line style."""
-
-    label: str
-    values: dict[int, float]
-    std: dict[int, float] | None = None
-    color: int = 0
-    style: str = "-"
-
-
-def horizon_panels(
-    panels: Sequence[tuple[str, Sequence[Curve]]], ylabel: str = "Euler-angle error (rad)"
-) -> Figure:
-    """Error against prediction horizon, one panel per (title, curves) side by side, as Li et
-    al. (2018) Figure 4; a curve with `std` gets a shaded ± band."""
-    if not panels:
-        raise ValueError("horizon_panels: no panels given")
-    fig = Figure(figsize=(5.0 * len(panels), 3.8), dpi=100)
-    for k, (title, curves) in enumerate(panels):
-        ax = fig.add_subplot(1, len(panels), k + 1)
-        ticks: set[int] = set()
-        for curve in curves:
-            ms = sorted(curve.values)
-            ticks.update(ms)
-            color = f"C{curve.color % 10}"
-            values = [curve.values[m] for m in ms]
-            ax.plot(ms, values, curve.style, marker="o", ms=3, color=color, label=curve.label)
-            if curve.std:
-                low = [curve.values[m] - curve.std.get(m, 0.0) for m in ms]
-                high = [curve.values[m] + curve.std.get(m, 0.0) for m in ms]
-                ax.fill_between(ms, low, high, color=color, alpha=0.15, lw=0)
-        ax.set_xticks(sorted(ticks))
-        ax.set_xlabel("prediction horizon (ms)")
-        ax.set_ylabel(ylabel)
-        ax.set_ylim(bottom=0)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-        # A long protocol name would run past a 5-inch panel and be cut off.
-        ax.set_title(textwrap.fill(title, 48), fontsize=10)
-    fig.tight_layout()
-    return fig
+    curves = [Curve(label, v, style="--" if label in dashed else "-") for label, v in results]
+    return line_panels([(title, curves)], ylabel=ylabel)
