@@ -130,10 +130,7 @@ def train(cfg: DictConfig) -> float:
         "commit": git_commit(),
         "missing_files": list(dm.missing_files),
     }
-    module = build_module(cfg, dm, run_info=run_info)
-    dm.draws_per_step = 2 if module.adversarial else 1
-    if ckpt is not None:
-        dm.resume_iteration = done
+    module = build_module(cfg, dm, run_info=run_info)  # it stops at cfg.iterations
 
     # Under fast_dev_run Lightning swaps this logger for a dummy; only touching
     # logger.experiment (the error-curve layout below) would still write an events file.
@@ -151,7 +148,7 @@ def train(cfg: DictConfig) -> float:
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
         cfg.trainer,
-        max_epochs=cfg.iterations // cfg.val_every,  # exact: check_schedule
+        max_epochs=-1,  # the module stops at `iterations`
         logger=logger,
         callbacks=[
             timer,
@@ -170,7 +167,7 @@ def train(cfg: DictConfig) -> float:
     start = time.perf_counter()
     with warnings.catch_warnings():
         # False here: the training sampler continues a resumed epoch at the exact batch
-        # (dm.resume_iteration above; tests/test_runs.py resumes bit for bit).
+        # (MotionPredictor.on_fit_start; tests/test_runs.py resumes bit for bit).
         warnings.filterwarnings("ignore", message=".*your dataloader is not resumable")
         trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
     wall = time.perf_counter() - start

@@ -6,9 +6,9 @@ Two files per run folder, with two purposes:
   optimisers, LR schedulers, loop counters, random state). Rewritten at every validation,
   every `checkpoint_every` iterations and when SIGINT/SIGTERM arrive, always atomically
   (written beside, then renamed), so a kill during a write leaves the previous one intact.
-- `best-epochNNN.ckpt`, the best validation error of the whole run, resumes included: lean
-  (weights, normaliser, config and actions; no optimiser state), for `src.eval` and
-  `MotionForecaster`.
+- `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before), the best validation error of the whole
+  run, resumes included, named by its training iteration: lean (weights, normaliser, config
+  and actions; no optimiser state), for `src.eval` and `MotionForecaster`.
 
 Why not Lightning's ModelCheckpoint(save_last=True) alone: in Lightning 2.6, with validation
 at the epoch's end, it rewrites last.ckpt only in a call that also wrote a top-k file, i.e.
@@ -136,7 +136,8 @@ class LastCheckpoint(Checkpoint):
 
 
 class BestCheckpoint(ModelCheckpoint):
-    """Lean `best-epochNNN.ckpt` of the lowest validation error over the whole run.
+    """Lean `best-iterNNNNNN.ckpt` of the lowest validation error over the whole run; logs one
+    line per validation (iteration, error at each horizon, best so far).
 
     A resumed run writes into a new folder; Lightning then forgets the best score
     (ModelCheckpoint.load_state_dict keeps it only for the same dirpath) and would save a worse
@@ -148,13 +149,38 @@ class BestCheckpoint(ModelCheckpoint):
         super().__init__(
             dirpath=dirpath,
             # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
-            filename="best-epoch{epoch:03d}",
+            filename="best-iter{iteration:06d}",
             auto_insert_metric_name=False,
             monitor=monitor,
             mode="min",
             save_last=False,
             save_top_k=1,
             save_weights_only=True,
+        )
+
+    def _monitor_candidates(self, trainer: L.Trainer) -> dict[str, torch.Tensor]:
+        # The file name's count: the module's, which a resumed checkpoint of any version holds
+        # (Lightning's step counted 2 per adversarial iteration before this version).
+        iteration = torch.tensor(trainer.lightning_module.host_iteration)
+        return {**super()._monitor_candidates(trainer), "iteration": iteration}
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_validation_end(trainer, pl_module)
+        metrics, prefix = trainer.callback_metrics, "val_euler/average/"
+        if trainer.sanity_checking or not trainer.is_global_zero or self.monitor not in metrics:
+            return
+        horizons = ", ".join(
+            f"{int(k[len(prefix) : -2])} ms {float(v):.3f}"
+            for k, v in sorted(metrics.items())
+            if k.startswith(prefix)
+        )
+        best, path = self.best_model_score, Path(self.best_model_path).name
+        log.info(
+            "validation at iteration %d: Euler error %s; average %.4f (%s)",
+            pl_module.host_iteration,
+            horizons,
+            float(metrics[self.monitor]),
+            "no best checkpoint" if best is None else f"best {float(best):.4f}: {path}",
         )
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:

@@ -129,36 +129,35 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
     """The LightningModule for `cfg.model` (+ `cfg.adversarial`, `cfg.sampling`) on `dm`, a
     set-up datamodule or the DataFacts of a checkpoint."""
     net = _instantiate_with_data(cfg.model.net, dm)
-    adv = cfg.get("adversarial") or {"enabled": False}
-    discriminator = d_optimizer = None
     trainable = any(p.requires_grad for p in net.parameters())
+    model, adv, compile_ = cfg.model, cfg.get("adversarial") or {}, cfg.get("compile") or {}
+    settings = ("lr_decay_every", "lr_decay_gamma", "lambda_2", "grad_clip_norm")
+    kwargs = {k: model[k] for k in settings if k in model}
     if adv.get("enabled") and trainable:
-        discriminator = _instantiate_with_data(
-            adv.discriminator, dm, seq_len=dm.observed_len + dm.future_len
-        )
-        d_optimizer = hydra.utils.instantiate(adv.optimizer)
+        kwargs |= {
+            "discriminator": _instantiate_with_data(
+                adv.discriminator, dm, seq_len=dm.observed_len + dm.future_len
+            ),
+            "d_optimizer": hydra.utils.instantiate(adv.optimizer),
+            "lambda_adv": adv.get("lambda_adv", 0.0),
+            "lambda_2_d": adv.get("lambda_2", 0.0),
+            "reference_fake_slot": adv.get("reference_fake_slot", False),
+        }
     return MotionPredictor(
-        net=net,
-        normalizer=dm.normalizer,
+        net,
+        dm.normalizer,
         dataset=dm.dataset_name,
         actions=dm.actions,
         frame_ms=dm.frame_ms,
         future_len=dm.future_len,
-        optimizer=hydra.utils.instantiate(cfg.model.optimizer) if trainable else None,
-        lr_decay_every=cfg.model.get("lr_decay_every", 10000),
-        lr_decay_gamma=cfg.model.get("lr_decay_gamma", 1.0),
-        lambda_2=cfg.model.get("lambda_2", 0.0),
-        grad_clip_norm=cfg.model.get("grad_clip_norm"),
+        optimizer=hydra.utils.instantiate(model.optimizer) if trainable else None,
         eta_schedule=_instantiate(cfg.sampling) if cfg.get("sampling") else None,
-        discriminator=discriminator,
-        d_optimizer=d_optimizer,
-        lambda_adv=adv.get("lambda_adv", 0.0) if discriminator is not None else 0.0,
-        lambda_2_d=adv.get("lambda_2", 0.0),
-        reference_fake_slot=adv.get("reference_fake_slot", False),
         dim_rule=cfg.metrics.dim_rule,
         run_info=run_info,
-        compile=cfg.get("compile", {}).get("enabled", False),
-        compile_mode=cfg.get("compile", {}).get("mode", "reduce-overhead"),
+        compile=compile_.get("enabled", False),
+        compile_mode=compile_.get("mode", "reduce-overhead"),
+        iterations=cfg.get("iterations"),
+        **kwargs,
     )
 
 
