@@ -310,6 +310,14 @@ class MotionDataModule(L.LightningDataModule):
         self._eval_dataset = EvalWindowDataset(eval_base, pairs)
         self.normalizer = normalizer
 
+    def leave_out(self, absent: dict[str, str]) -> None:
+        """Evaluate without the windows of these actions, reported absent with the reason."""
+        keep = [i for i, w in enumerate(self.eval_windows) if w.action not in absent]
+        self.eval_windows = [self.eval_windows[i] for i in keep]
+        pairs = [self._eval_dataset.windows[i] for i in keep]
+        self._eval_dataset = EvalWindowDataset(self._eval_dataset.base, pairs)
+        self.absent_actions.update(absent)
+
     def _action_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
         low = TRAIN_START_LOW[self.dataset_name]
         if self.eval_protocol == "srnn":

@@ -354,10 +354,14 @@ class MotionPredictor(L.LightningModule):
                 )
 
     # ---------------------------------------------------------------- evaluation
+    def forward(self, observed: Tensor, future_len: int, action: Tensor | None = None) -> Tensor:
+        """Fully autoregressive prediction in normalised space (eta = 1, no ground truth)."""
+        return self.net(observed, future_len, action=action)
+
     def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
         """The unnormalised prediction (B, T, F) for a batch of test windows: the network's,
-        fully autoregressive (eta = 1, no ground truth). src.scoring puts a file's in its place."""
-        pred = self.net(batch["observed"], batch["future"].shape[1], action=batch["action"])
+        fully autoregressive. src.scoring puts a file's predictions in its place."""
+        pred = self(batch["observed"], batch["future"].shape[1], action=batch["action"])
         return self.normalizer.unnormalize(pred)
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
