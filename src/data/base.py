@@ -138,7 +138,6 @@ class MotionDataModule(L.LightningDataModule):
         self._eval_dataset: EvalWindowDataset | None = None
         self._test_raw: dict[str, np.ndarray] = {}
         self._test_entries: dict[str, list[FileEntry]] = {}
-        self._warned_missing = False
         self._given_normalizer: Normalizer | None = None
         self._stage: str | None = None
 
@@ -209,8 +208,6 @@ class MotionDataModule(L.LightningDataModule):
     def prepare_data(self) -> None:
         """Unpack the archive if needed and parse every present file into the cache."""
         train, test = self._locate()
-        if self._eval_only:
-            train = []
         present = [e.relpath for e in train + test if e.relpath not in self.missing_files]
         load_sequences(self.data_dir, self.spec, present)
 
@@ -220,10 +217,30 @@ class MotionDataModule(L.LightningDataModule):
         if self._eval_only:
             train = []
         self.missing_files = missing_files(self.data_dir, train + test)
-        if not self._warned_missing or not self.allow_partial:
-            check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
-            self._warned_missing = True
+        check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
         return train, test
+
+    def _warn_missing(self, train: list[FileEntry]) -> None:
+        """data.allow_partial=true: what is missing, counted by kind, and what is done."""
+        n_train = sum(e.relpath in self.missing_files for e in train)
+        n_test = len(self.missing_files) - n_train
+        if self._eval_only:
+            kind, doing = "test ", "evaluating with"
+            counted = "training files are not needed: the checkpoint holds the normalisation"
+        else:
+            kind, counted = "", f"{n_train} training, {n_test} test"
+            doing = "training on" if self._stage == "fit" else "normalising and evaluating with"
+        log.warning(
+            "data.allow_partial=true: %d %s %sfile(s) are missing under %s (%s); %s the files "
+            "that exist, the actions without their test files reported as absent:\n  %s",
+            len(self.missing_files),
+            self.spec.name,
+            kind,
+            self.data_dir,
+            counted,
+            doing,
+            "\n  ".join(self.missing_files),
+        )
 
     def setup(self, stage: str | None = None) -> None:
         """Load, normalise and window the data (once; later calls are no-ops)."""
@@ -232,6 +249,8 @@ class MotionDataModule(L.LightningDataModule):
         self._stage = stage
         train, test = self._locate()
         missing = set(self.missing_files)
+        if missing:  # only with allow_partial: _locate raised otherwise
+            self._warn_missing(train)
         train = [e for e in train if e.relpath not in missing]
         present_test = [e for e in test if e.relpath not in missing]
         raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
