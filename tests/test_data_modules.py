@@ -212,17 +212,17 @@ def test_missing_files_are_counted_by_kind_and_the_message_says_what_is_done(tmp
     (root / "h3.6m/dataset/S5/eating_2.txt").unlink()  # a test file
     (root / "h3.6m/dataset/S1/smoking_1.txt").unlink()  # a training file
     kwargs = {"actions": "walking,eating,smoking", "train_subjects": [1], "allow_partial": True}
-    messages = {}
+    messages, trained = {}, None
     for stage in ("fit", "evaluate a checkpoint", "evaluate a baseline"):
         dm = H36MDataModule(root, **kwargs, **SMALL)
-        if stage == "evaluate a checkpoint":
+        if stage == "evaluate a checkpoint":  # the statistics a checkpoint carries
             dm.set_normalizer(trained.normalizer)
         caplog.clear()
         with caplog.at_level("WARNING"):
             dm.prepare_data()
             dm.setup("fit" if stage == "fit" else "validate")
         (messages[stage],) = [r.getMessage() for r in caplog.records if "missing" in r.msg]
-        trained = dm
+        trained = trained or dm
     assert "2 h36m file(s) are missing" in messages["fit"]
     assert "(1 training, 1 test); training on the files that exist" in messages["fit"]
     checkpoint = messages["evaluate a checkpoint"]

@@ -157,6 +157,7 @@ class BestCheckpoint(ModelCheckpoint):
             save_top_k=1,
             save_weights_only=True,
         )
+        self._line: str | None = None  # the last validation's, logged once the best is saved
 
     def _monitor_candidates(self, trainer: L.Trainer) -> dict[str, torch.Tensor]:
         # The file name's count: the module's, which a resumed checkpoint of any version holds
@@ -174,14 +175,18 @@ class BestCheckpoint(ModelCheckpoint):
             for k, v in sorted(metrics.items())
             if k.startswith(prefix)
         )
-        best, path = self.best_model_score, Path(self.best_model_path).name
-        log.info(
-            "validation at iteration %d: Euler error %s; average %.4f (%s)",
-            pl_module.host_iteration,
-            horizons,
-            float(metrics[self.monitor]),
-            "no best checkpoint" if best is None else f"best {float(best):.4f}: {path}",
+        self._line = (
+            f"validation at iteration {pl_module.host_iteration}: Euler error {horizons}; "
+            f"average {float(metrics[self.monitor]):.4f}"
         )
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_train_epoch_end(trainer, pl_module)  # the best is saved here (val_every)
+        line, self._line = self._line, None
+        if line is not None:
+            best, path = self.best_model_score, Path(self.best_model_path).name
+            best = "no best" if best is None else f"best {float(best):.4f}: {path}"
+            log.info("%s (%s)", line, best)
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         if state_dict.get("dirpath", self.dirpath) == self.dirpath:
