@@ -1,25 +1,20 @@
-"""Score a file of predictions made by any code on the protocol's test windows, as src.eval
-scores a model (src/results.py's `evaluate` takes the scores from here).
+"""Score a file of predictions made by any code on the protocol's test windows:
 
     python -m src.export_windows data=h36m protocol=srnn out=windows.npz
     # ... predict windows.npz's `observed` with any model, save preds.npz ...
     python -m src.eval predictions=preds.npz data=h36m protocol=srnn
 
-A predictions file is a .npz holding
+A predictions file is a .npz of ``prediction`` (N, T, F), raw exp-map frames as windows.npz's
+(F = 99 on H3.6M, 117 on CMU), the T = data.future_len (25) frames after each window's
+observed ones, and ``window_id`` (N,), windows.npz's ids in any order. Optional: ``model``, a
+name for the tables (default: the file's name), and windows.npz's ``dataset``, ``protocol`` and
+``data_sha256``, then checked against what is scored. Every window of an action is predicted,
+or none: the action is then reported absent.
 
-- ``prediction`` (N, T, F): raw exp-map frames, as windows.npz's (F = 99 on H3.6M, 117 on CMU),
-  the T = data.future_len (25) frames that follow each window's observed ones;
-- ``window_id`` (N,): strings, the ids of windows.npz, in any order.
-
-Optional: ``model``, a name for the tables (default: the file's name), and windows.npz's
-``dataset``, ``protocol`` and ``data_sha256``, which are then checked against what is scored.
-Every window of an action is predicted, or none: the action is then reported absent.
-
-Scoring is src.eval's evaluation with the file in place of a network: the ground truth of the
-same datamodule (the test frames through the training statistics, protocol §2.2), the same
-Euler-angle error and MPJPE, the same tables. In the prediction, the columns the protocol ignores
-(std < 1e-4 over the training frames, §2.1) are set to their training mean, as unnormalising the
-reference models' output does: no model is judged on them.
+Scoring is src.eval's test of a model with the file in place of the network (FilePredictor):
+the same ground truth, Euler-angle error, MPJPE and tables. The columns the protocol ignores
+(std < 1e-4 over the training frames, §2.1) are set to their training mean, as unnormalising
+a network's output does: no model is judged on them.
 """
 
 from __future__ import annotations
@@ -33,10 +28,10 @@ import torch
 from omegaconf import DictConfig
 from torch import Tensor, nn
 
-from src.data.base import EVAL_PROTOCOLS, MotionDataModule, window_ids
+from src.data.base import MotionDataModule, window_ids
 from src.data.export import data_sha256
 from src.data.layout import SPECS
-from src.lit.factory import ConfigError, build_datamodule
+from src.lit.factory import ConfigError, build_test_data
 from src.lit.predictor import MotionPredictor
 from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import find_published, published_datasets
@@ -61,28 +56,6 @@ class Predictions:
     @property
     def name(self) -> str:
         return self.meta.get("model") or self.path.stem
-
-
-# ---------------------------------------------------------------------------- the windows
-def protocol_datamodule(cfg: DictConfig) -> MotionDataModule:
-    """The set-up datamodule of `data=` with the test windows of `protocol=` (default: the
-    data config's own, srnn)."""
-    if cfg.get("data") is None:
-        raise ConfigError(
-            "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
-        )
-    data_cfg = cfg.data.copy()
-    protocol = cfg.get("protocol")
-    if protocol:
-        if protocol not in EVAL_PROTOCOLS:
-            raise ConfigError(
-                f"protocol={protocol!r} is unknown; use one of: {', '.join(EVAL_PROTOCOLS)}"
-            )
-        data_cfg.eval_protocol = protocol
-    dm = build_datamodule(data_cfg)
-    dm.prepare_data()
-    dm.setup("validate")
-    return dm
 
 
 # ---------------------------------------------------------------------------- the file
@@ -311,7 +284,7 @@ def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, FilePredictor]
     preds = read_predictions(cfg.predictions)
     check_intent(preds, dataset, cfg.get("protocol") or cfg.data.eval_protocol)
     published = published_ref(cfg.get("published"), dataset)
-    dm = protocol_datamodule(cfg)
+    dm = build_test_data(cfg)
     dm.leave_out(match_windows(preds, dm, dataset))
     model = {"name": preds.name, "published": published}
     config = {"model": model, "data": {"name": dataset}}

@@ -209,6 +209,22 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     return module.eval()
 
 
+def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normalizer=None):
+    """The set-up datamodule of the test windows of `data_cfg` (default: `cfg.data`) under
+    `cfg.protocol` (default: the data config's own, srnn)."""
+    if data_cfg is None and cfg.get("data") is None:
+        raise ConfigError(
+            "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
+        )
+    data_cfg = (cfg.data if data_cfg is None else data_cfg).copy()
+    if cfg.get("protocol"):
+        data_cfg.eval_protocol = cfg.protocol
+    dm = build_datamodule(data_cfg, normalizer=normalizer)
+    dm.prepare_data()
+    dm.setup("validate")
+    return dm
+
+
 def build_for_evaluation(cfg: DictConfig):
     """(datamodule of the test windows, module) for src.eval and src.visualize: the trained
     model of `cfg.ckpt_path` on its own data config, or the baseline of `cfg.model` on
@@ -222,21 +238,13 @@ def build_for_evaluation(cfg: DictConfig):
         if cfg.get("data") is not None:  # evaluation settings (protocol, windows) may differ
             for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
                 data_cfg[key] = cfg.data[key]
-        normalizer = module.normalizer
-    elif cfg.get("model") is None or cfg.get("data") is None:
+        return build_test_data(cfg, data_cfg, module.normalizer), module
+    if cfg.get("model") is None or cfg.get("data") is None:
         raise ConfigError(
             "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
             "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
         )
-    else:
-        data_cfg, normalizer = cfg.data.copy(), None
-    if cfg.get("protocol"):
-        data_cfg.eval_protocol = cfg.protocol
-    dm = build_datamodule(data_cfg, normalizer=normalizer)
-    dm.prepare_data()
-    dm.setup("validate")
-    if cfg.ckpt_path:
-        return dm, module
+    dm = build_test_data(cfg)
     config = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in ("model", "data")}
     module = build_module(cfg, dm, run_info={"commit": git_commit(), "config": config})
     if module.trainable:
