@@ -1,19 +1,12 @@
-"""Everything about checkpoint files: writing them during training, reading and checking them.
+"""Checkpoint files: writing them during training, reading and checking them. Two per run:
 
-Two files per run folder, with two purposes:
-
-- `last.ckpt`, the run's resume point: everything needed to continue (weights, both
-  optimisers, LR schedulers, loop counters, random state). Rewritten at every validation,
-  every `checkpoint_every` iterations and when SIGINT/SIGTERM arrive, always atomically
-  (written beside, then renamed), so a kill during a write leaves the previous one intact.
-- `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before), the best validation error of the whole
-  run, resumes included, named by its training iteration: lean (weights, normaliser, config
-  and actions; no optimiser state), for `src.eval` and `MotionForecaster`.
-
-Why not Lightning's ModelCheckpoint(save_last=True) alone: in Lightning 2.6, with validation
-at the epoch's end, it rewrites last.ckpt only in a call that also wrote a top-k file, i.e.
-only when the monitored error improved (model_checkpoint.py, on_validation_end). A run whose
-error rose after its best point kept an old last.ckpt and a resume silently redid the work.
+- `last.ckpt`, the resume point (weights, both optimisers, LR schedulers, loop counters, random
+  state), rewritten atomically at every validation, every `checkpoint_every` iterations and on
+  SIGINT/SIGTERM. Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it only with a new
+  best, so a run whose error rose kept an old one and a resume silently redid the work.
+- `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40), the best validation of the
+  whole run, resumes included, named by its iteration: lean (weights, normaliser, config,
+  actions), for `src.eval` and `MotionForecaster`.
 """
 
 from __future__ import annotations
@@ -211,17 +204,10 @@ class BestCheckpoint(ModelCheckpoint):
 # ---------------------------------------------------------------------------- reading
 def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
-    if path.is_dir():
-        # Name the files that are there: the folder may be a run's or its checkpoints/.
+    if path.is_dir():  # name the files there: the folder may be a run's or its checkpoints/
         found = sorted(path.glob("*.ckpt")) or sorted(path.glob("checkpoints/*.ckpt"))
-        if found:
-            raise CheckpointError(
-                f"{path} is a folder; give a checkpoint file: {' or '.join(map(str, found))}"
-            )
-        raise CheckpointError(
-            f"{path} is a folder; give a checkpoint file inside it, e.g. "
-            f"{path / 'checkpoints' / LAST}"
-        )
+        example = " or ".join(map(str, found)) or f"e.g. {path / 'checkpoints' / LAST}"
+        raise CheckpointError(f"{path} is a folder; give a checkpoint file: {example}")
     if not path.is_file():
         raise CheckpointError(
             f"checkpoint not found: {path}. Runs keep theirs in "

@@ -87,9 +87,7 @@ class MotionPredictor(L.LightningModule):
     ):
         super().__init__()
         if compile not in (True, False, "auto"):
-            raise ValueError(
-                f"compile must be true, false or auto (on a CUDA device), got {compile!r}"
-            )
+            raise ValueError(f"compile must be true, false or auto (on CUDA), got {compile!r}")
         self.automatic_optimization = False
         self.net, self.normalizer, self.discriminator = net, normalizer, discriminator
         self.dataset, self.actions, self.frame_ms = dataset, list(actions), frame_ms
@@ -145,8 +143,7 @@ class MotionPredictor(L.LightningModule):
         ]
         return optimizers, schedulers
 
-    def on_train_start(self) -> None:
-        # After a resume restored `iteration`; the compile decision on the fit's device.
+    def on_train_start(self) -> None:  # after a resume restored `iteration`; on the fit's device
         self._host_iteration, self._compiled = None, None
 
     def on_fit_start(self) -> None:
@@ -172,8 +169,8 @@ class MotionPredictor(L.LightningModule):
 
     @property
     def host_iteration(self) -> int:
-        """`iteration` as a Python int: read from the device once per fit (on a GPU each read
-        is a host sync, a stall of the launch queue), then counted on the host."""
+        """`iteration` as a Python int: read from the device once per fit (on a GPU a read is
+        a host sync), then counted on the host."""
         if self._host_iteration is None:
             self._host_iteration = int(self.iteration)
         return self._host_iteration
@@ -189,12 +186,10 @@ class MotionPredictor(L.LightningModule):
 
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
         """The 75-frame sequence the discriminator judges: the observed frames, then the ground
-        truth `future` (the real sample) or the prediction `fake`.
-
-        The reference code put the first ground-truth future frame in the slot of the last
-        observed frame of the fake sample only (protocol §6.5: w[0..48], w[50], predictions;
-        the real sample is w[0..74]); `reference_fake_slot` reproduces that for comparison.
-        """
+        truth `future` (the real sample) or the prediction `fake`. The reference code put the
+        first ground-truth future frame in the slot of the last observed frame of the fake
+        sample only (protocol §6.5: w[0..48], w[50], predictions; the real sample is w[0..74]);
+        `reference_fake_slot` reproduces that for comparison."""
         if fake is None:
             return torch.cat([observed, future], dim=1)
         if self.reference_fake_slot:
@@ -234,8 +229,7 @@ class MotionPredictor(L.LightningModule):
     def _objectives(self):
         """(discriminator, generator) objective functions: eager, or compiled (see `compile`)."""
         if self._compiled is None:
-            # auto: not under DDP, where compiling a bound method of the inner module is not
-            # what torch's DDP graph splitting expects (untested there).
+            # auto: not under DDP (compiling a bound method of the inner module: untested).
             single = self._trainer is None or self.trainer.world_size == 1
             on = self.compile_step is True or (
                 self.compile_step == "auto" and self.device.type == "cuda" and single
@@ -246,9 +240,8 @@ class MotionPredictor(L.LightningModule):
                 # in the process under the same two functions and, with fullgraph, refuses
                 # their 9th (recompile_limit): a sweep of model structures would stop there.
                 torch.compiler.reset()
-                # Static shapes and one graph per objective: reduce-overhead captures each
-                # (forward and backward) in a CUDA graph, so a step is a few graph launches
-                # instead of thousands of kernels (the GPU step was launch-bound).
+                # One static graph per objective: reduce-overhead captures each (forward and
+                # backward) in a CUDA graph, a few launches instead of thousands of kernels.
                 d = torch.compile(d, mode=self.compile_mode, fullgraph=True)
                 g = torch.compile(g, mode=self.compile_mode, fullgraph=True)
             self._compiled = (on, d, g)
@@ -301,9 +294,8 @@ class MotionPredictor(L.LightningModule):
         loss_recon = loss_recon.clone()
         loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else loss_recon.new_zeros(())
         loss_g = loss_backprop.detach() + self.lambda_2 * loss_l2
-        # Once per iteration, before the generator's step: a check is a host sync. A
-        # non-finite loss_d has then moved the discriminator already, but nothing is saved
-        # after this error (the last good last.ckpt stays) and it names loss_d alone.
+        # Once per iteration (a host sync), before G's step. A non-finite loss_d has moved D
+        # already, but nothing is saved after this error, which names loss_d alone.
         self._check_finite(d_losses, {"loss_g": loss_g, "loss_recon": loss_recon})
         opt_g.zero_grad()
         self.manual_backward(loss_backprop)
@@ -408,10 +400,9 @@ class MotionPredictor(L.LightningModule):
 
     # ---------------------------------------------------------------- checkpoints
     def _check_finite_weights(self) -> None:
-        """A step can turn the weights NaN after a finite loss; the loss check would fire only
-        at the next iteration, after validation and the epoch's checkpoint. Checked once per
-        epoch, before validation and before every checkpoint is written, so the previous good
-        last.ckpt is kept."""
+        """A step can turn the weights NaN after a finite loss, which the loss check sees only
+        at the next iteration: checked before each validation and checkpoint write, so the
+        previous good last.ckpt is kept."""
         nets = [self.net] if self.discriminator is None else [self.net, self.discriminator]
         bad = [n for net in nets for n, p in net.named_parameters() if not p.isfinite().all()]
         if bad:
