@@ -150,24 +150,6 @@ class MotionDataModule(L.LightningDataModule):
     def _eval_only(self) -> bool:
         return self._given_normalizer is not None and self._stage != "fit"
 
-    def _plain_hparams(self) -> None:
-        """Store paths and OmegaConf lists as plain str/list in ``hparams``: checkpoints then
-        load with torch.load(weights_only=True), which refuses pathlib and omegaconf objects."""
-
-        def plain(v):
-            if v is None or isinstance(v, (str, int, float, bool)):
-                return v
-            if isinstance(v, os.PathLike):
-                return os.fspath(v)
-            if isinstance(v, (tuple, list)):
-                return type(v)(plain(x) for x in v)
-            if isinstance(v, Iterable):
-                return [plain(x) for x in v]
-            return str(v)
-
-        for key, value in list(self.hparams.items()):
-            self.hparams[key] = plain(value)
-
     # ---- dataset-specific parts -------------------------------------------------------------
 
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
