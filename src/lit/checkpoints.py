@@ -278,16 +278,14 @@ def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
             f"data={cfg.data.name}"
         )
     if cfg.get("model") is not None and not problems:
-        want = OmegaConf.to_container(cfg.model.net, resolve=True)
-        have = saved["model"]["net"]
+        want, have = OmegaConf.to_container(cfg.model.net, resolve=True), saved["model"]["net"]
         diff = [
-            k for k in want if k != "padding" and k in have and want[k] != have[k] and k[0] != "_"
+            f"{k}={have[k]} in checkpoint vs {v}"
+            for k, v in want.items()
+            if k in have and k != "padding" and k[0] != "_" and v != have[k]
         ]
         if diff:
-            problems.append(
-                "architecture settings: "
-                + ", ".join(f"{k}={have[k]} in checkpoint vs {want[k]}" for k in diff)
-            )
+            problems.append("architecture settings: " + ", ".join(diff))
     if problems:
         raise CheckpointError(
             f"checkpoint {path} does not match the config: "
