@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import inspect
 import subprocess
-from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import hydra
@@ -87,29 +87,6 @@ def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None)
     return dm
 
 
-@dataclass(frozen=True)
-class DataFacts:
-    """What building a model needs to know of its data. A set-up MotionDataModule has all of
-    it (build_module takes either); a checkpoint holds it too, so `load_trained` rebuilds a
-    model without its data files."""
-
-    normalizer: Normalizer
-    actions: list[str]
-    dataset_name: str
-    conv_padding: str
-    frame_ms: float
-    observed_len: int
-    future_len: int
-
-    @property
-    def pose_dim(self) -> int:
-        return self.normalizer.pose_dim
-
-    @property
-    def num_actions(self) -> int:
-        return len(self.actions)
-
-
 # ---------------------------------------------------------------------------- models
 def _instantiate_with_data(node: DictConfig, dm, **extra):
     """Instantiate a network config, filling in what only the data knows (pose dimension,
@@ -127,7 +104,7 @@ def _instantiate_with_data(node: DictConfig, dm, **extra):
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
     """The LightningModule for `cfg.model` (+ `cfg.adversarial`, `cfg.sampling`) on `dm`, a
-    set-up datamodule or the DataFacts of a checkpoint."""
+    set-up datamodule or what load_trained reads of a checkpoint."""
     net = _instantiate_with_data(cfg.model.net, dm)
     trainable = any(p.requires_grad for p in net.parameters())
     model, adv, compile_ = cfg.model, cfg.get("adversarial") or {}, cfg.get("compile") or {}
@@ -180,15 +157,16 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     normalizer.load_state_dict(
         {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
     )
-    data = hydra.utils.get_class(saved.data._target_)  # the class attributes only
-    facts = DataFacts(
-        normalizer,
-        list(motion["actions"]),
-        data.dataset_name,
-        data.conv_padding,
-        data.frame_ms,
-        saved.data.observed_len,
-        saved.data.future_len,
+    # What build_module reads of a set-up datamodule: a checkpoint holds it too, so no data
+    # file is read (the class attributes of the data config's datamodule, the saved lengths).
+    data, actions = hydra.utils.get_class(saved.data._target_), list(motion["actions"])
+    facts = SimpleNamespace(
+        normalizer=normalizer,
+        pose_dim=normalizer.pose_dim,
+        actions=actions,
+        num_actions=len(actions),
+        **{k: getattr(data, k) for k in ("dataset_name", "conv_padding", "frame_ms")},
+        **{k: saved.data[k] for k in ("observed_len", "future_len")},
     )
     if cfg is not None and cfg.get("metrics") is not None:
         saved.metrics = cfg.metrics
