@@ -19,11 +19,10 @@ from omegaconf import DictConfig
 
 from src.cli import hydra_entry
 from src.data.export import window_arrays
-from src.lit.factory import ConfigError, register_resolvers
+from src.lit.factory import ConfigError, build_test_data, register_resolvers
 from src.lit.run_folders import nothing_left_if_refused
 from src.lit.schema import ExportWindowsConfig
 from src.lit.validation import validate_eval_config
-from src.scoring import protocol_datamodule
 
 register_resolvers()
 
@@ -36,7 +35,7 @@ def export(cfg: DictConfig) -> Path:
         raise ConfigError(f"out={out}: name a .npz file, e.g. out=windows.npz")
     if out.exists():
         raise ConfigError(f"out={out} already exists; nothing was overwritten. Name a new file.")
-    dm = protocol_datamodule(cfg)
+    dm = build_test_data(cfg)
     arrays = window_arrays(dm, cfg.data.name)
     out.parent.mkdir(parents=True, exist_ok=True)
     # Written beside, then renamed: a killed export leaves no half file under the name.

@@ -53,16 +53,14 @@ def evaluate(cfg: DictConfig) -> dict:
     validate_eval_config(cfg)
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
-    if cfg.get("predictions"):  # a file of predictions from any code, src/scoring.py
-        dm, module, model_cfg, dataset = score_predictions(cfg)
-    else:
-        dm, module = build_for_evaluation(cfg)
-        model_cfg = module.run_info["config"]["model"]
-        dataset = module.run_info["config"]["data"]["name"]
-        trainer: L.Trainer = build_trainer(
-            cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
-        )
-        trainer.test(module, datamodule=dm, verbose=False)
+    # A file of predictions from any code (src/scoring.py) is tested as a model is.
+    dm, module = (score_predictions if cfg.get("predictions") else build_for_evaluation)(cfg)
+    model_cfg = module.run_info["config"]["model"]
+    dataset = module.run_info["config"]["data"]["name"]
+    trainer: L.Trainer = build_trainer(
+        cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
+    )
+    trainer.test(module, datamodule=dm, verbose=False)
     tables = build_tables(module, dm, model_cfg, dataset)
 
     out_dir = Path(cfg.paths.output_dir)

@@ -1,25 +1,20 @@
-"""Score a file of predictions made by any code on the protocol's test windows, as src.eval
-scores a model (src/results.py's `evaluate` takes the scores from here).
+"""Score a file of predictions made by any code on the protocol's test windows:
 
     python -m src.export_windows data=h36m protocol=srnn out=windows.npz
     # ... predict windows.npz's `observed` with any model, save preds.npz ...
     python -m src.eval predictions=preds.npz data=h36m protocol=srnn
 
-A predictions file is a .npz holding
+A predictions file is a .npz of ``prediction`` (N, T, F), raw exp-map frames as windows.npz's
+(F = 99 on H3.6M, 117 on CMU), the T = data.future_len (25) frames after each window's
+observed ones, and ``window_id`` (N,), windows.npz's ids in any order. Optional: ``model``, a
+name for the tables (default: the file's name), and windows.npz's ``dataset``, ``protocol`` and
+``data_sha256``, then checked against what is scored. Every window of an action is predicted,
+or none: the action is then reported absent.
 
-- ``prediction`` (N, T, F): raw exp-map frames, as windows.npz's (F = 99 on H3.6M, 117 on CMU),
-  the T = data.future_len (25) frames that follow each window's observed ones;
-- ``window_id`` (N,): strings, the ids of windows.npz, in any order.
-
-Optional: ``model``, a name for the tables (default: the file's name), and windows.npz's
-``dataset``, ``protocol`` and ``data_sha256``, which are then checked against what is scored.
-Every window of an action is predicted, or none: the action is then reported absent.
-
-Scoring is src.eval's evaluation with the file in place of a network: the ground truth of the
-same datamodule (the test frames through the training statistics, protocol §2.2), the same
-Euler-angle error and MPJPE, the same tables. In the prediction, the columns the protocol ignores
-(std < 1e-4 over the training frames, §2.1) are set to their training mean, as unnormalising the
-reference models' output does: no model is judged on them.
+Scoring is src.eval's test of a model with the file in place of the network (FilePredictor):
+the same ground truth, Euler-angle error, MPJPE and tables. The columns the protocol ignores
+(std < 1e-4 over the training frames, §2.1) are set to their training mean, as unnormalising
+a network's output does: no model is judged on them.
 """
 
 from __future__ import annotations
@@ -31,18 +26,14 @@ from pathlib import Path
 import numpy as np
 import torch
 from omegaconf import DictConfig
-from torch import Tensor
+from torch import Tensor, nn
 
-from src.data.base import EVAL_PROTOCOLS, MotionDataModule, window_ids
+from src.data.base import MotionDataModule, window_ids
 from src.data.export import data_sha256
 from src.data.layout import SPECS
-from src.lit.factory import (
-    ConfigError,
-    build_datamodule,
-)
-from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
-from src.metrics.kinematics import Skeleton, moving_joints
-from src.metrics.mpjpe import MPJPE
+from src.lit.factory import ConfigError, build_test_data
+from src.lit.predictor import MotionPredictor
+from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import find_published, published_datasets
 
 OPTIONAL = ("model", "dataset", "protocol", "data_sha256")
@@ -65,37 +56,6 @@ class Predictions:
     @property
     def name(self) -> str:
         return self.meta.get("model") or self.path.stem
-
-
-@dataclass
-class Scores:
-    """What src.eval's tables take of an evaluated model: the per-action errors (A, T) of each
-    metric and the horizons (ms -> frame index), as MotionPredictor holds them after a test."""
-
-    last_results: dict[str, Tensor]
-    horizons: dict[int, int]
-
-
-# ---------------------------------------------------------------------------- the windows
-def protocol_datamodule(cfg: DictConfig) -> MotionDataModule:
-    """The set-up datamodule of `data=` with the test windows of `protocol=` (default: the
-    data config's own, srnn)."""
-    if cfg.get("data") is None:
-        raise ConfigError(
-            "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
-        )
-    data_cfg = cfg.data.copy()
-    protocol = cfg.get("protocol")
-    if protocol:
-        if protocol not in EVAL_PROTOCOLS:
-            raise ConfigError(
-                f"protocol={protocol!r} is unknown; use one of: {', '.join(EVAL_PROTOCOLS)}"
-            )
-        data_cfg.eval_protocol = protocol
-    dm = build_datamodule(data_cfg)
-    dm.prepare_data()
-    dm.setup("validate")
-    return dm
 
 
 # ---------------------------------------------------------------------------- the file
@@ -280,38 +240,36 @@ def published_ref(value: str | None, dataset: str) -> dict | None:
 
 
 # ---------------------------------------------------------------------------- scoring
-def score(preds: Predictions, dm: MotionDataModule, dim_rule: str = "future") -> Scores:
-    """The Euler-angle error and MPJPE of the file's predictions per action and frame, computed
-    as MotionPredictor computes them in src.eval (its `_evaluate`), window for window."""
-    normalizer = dm.normalizer
-    skeleton = Skeleton.load(dm.dataset_name)
-    euler = EulerAngleError(len(dm.actions), dm.future_len, dim_rule=dim_rule)
-    mpjpe = MPJPE(
-        skeleton, moving_joints(skeleton, normalizer.used), len(dm.actions), dm.future_len
-    )
-    row_of = {name: row for row, name in enumerate(preds.ids)}
-    rows = torch.tensor([row_of.get(n, -1) for n in window_ids(dm.eval_windows)])
-    prediction = torch.from_numpy(preds.prediction)
-    for batch in dm.test_dataloader():
-        row = rows[batch["window"]]
-        keep = row >= 0
-        if not keep.any():
-            continue
-        future, observed, action = (batch[k][keep] for k in ("future", "observed", "action"))
-        gt_full = normalizer.unnormalize(future)
-        pred_full = torch.where(normalizer.used, prediction[row[keep]], normalizer.mean)
-        euler.update(pred_full, gt_full, action, gt_observed_full=normalizer.unnormalize(observed))
-        mpjpe.update(pred_full, gt_full, action)
-    return Scores(
-        {"euler": euler.compute(), "mpjpe": mpjpe.compute()},
-        horizon_frame_indices(dm.frame_ms, dm.future_len),
-    )
+class FilePredictor(MotionPredictor):
+    """MotionPredictor's evaluation (src.eval's test loop) with the file's predictions in
+    place of the network's: the same ground truth, metrics and tables, window for window. The
+    columns the protocol ignores are set to their training mean, as unnormalising does."""
+
+    def __init__(self, preds: Predictions, dm: MotionDataModule, dim_rule: str, config: dict):
+        super().__init__(
+            nn.Identity(),
+            dm.normalizer,
+            dataset=dm.dataset_name,
+            actions=dm.actions,
+            frame_ms=dm.frame_ms,
+            future_len=dm.future_len,
+            optimizer=None,
+            dim_rule=dim_rule,
+            run_info={"config": config},
+        )
+        row_of = {name: row for row, name in enumerate(preds.ids)}
+        rows = [row_of[name] for name in window_ids(dm.eval_windows)]
+        prediction = torch.from_numpy(preds.prediction[rows])  # row i: eval window i
+        self.register_buffer("prediction", prediction, persistent=False)
+
+    def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
+        used, mean = self.normalizer.used, self.normalizer.mean
+        return torch.where(used, self.prediction[batch["window"]], mean)
 
 
-def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, Scores, dict, str]:
-    """(datamodule, scores, model config, dataset) for src.eval's tables, from
-    `predictions=<file> data=<name> [protocol=...] [published=PAPER:METHOD]`. The datamodule's
-    windows and absent actions become those scored."""
+def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, FilePredictor]:
+    """(datamodule of the windows scored, module to test) for src.eval, from
+    `predictions=<file> data=<name> [protocol=...] [published=PAPER:METHOD]`."""
     if cfg.get("ckpt_path") or cfg.get("model") is not None:
         raise ConfigError(
             "predictions= scores a file on its own: drop ckpt_path= and model= (score a "
@@ -326,10 +284,8 @@ def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, Scores, dict, 
     preds = read_predictions(cfg.predictions)
     check_intent(preds, dataset, cfg.get("protocol") or cfg.data.eval_protocol)
     published = published_ref(cfg.get("published"), dataset)
-    dm = protocol_datamodule(cfg)
-    absent = match_windows(preds, dm, dataset)
-    scores = score(preds, dm, cfg.metrics.dim_rule)
-    # The tables and the provenance count what was scored.
-    dm.absent_actions.update(absent)
-    dm.eval_windows = [w for w in dm.eval_windows if w.action not in absent]
-    return dm, scores, {"name": preds.name, "published": published}, dataset
+    dm = build_test_data(cfg)
+    dm.leave_out(match_windows(preds, dm, dataset))
+    model = {"name": preds.name, "published": published}
+    config = {"model": model, "data": {"name": dataset}}
+    return dm, FilePredictor(preds, dm, cfg.metrics.dim_rule, config)

@@ -130,10 +130,7 @@ def train(cfg: DictConfig) -> float:
         "commit": git_commit(),
         "missing_files": list(dm.missing_files),
     }
-    module = build_module(cfg, dm, run_info=run_info)
-    dm.draws_per_step = 2 if module.adversarial else 1
-    if ckpt is not None:
-        dm.resume_iteration = done
+    module = build_module(cfg, dm, run_info=run_info)  # it stops at cfg.iterations
 
     # Under fast_dev_run Lightning swaps this logger for a dummy; only touching
     # logger.experiment (the error-curve layout below) would still write an events file.
@@ -141,7 +138,8 @@ def train(cfg: DictConfig) -> float:
     logger = TensorBoardLogger(
         save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False
     )
-    progress_every = cfg.get("progress_every_s")
+    every = cfg.progress_every_s
+    progress = [] if every is None else [ProgressLog(cfg.iterations, every)]
     checkpoints = BestCheckpoint(out_dir / "checkpoints")
     last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path
@@ -151,7 +149,7 @@ def train(cfg: DictConfig) -> float:
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
         cfg.trainer,
-        max_epochs=cfg.iterations // cfg.val_every,  # exact: check_schedule
+        max_epochs=-1,  # the module stops at `iterations`
         logger=logger,
         callbacks=[
             timer,
@@ -159,7 +157,7 @@ def train(cfg: DictConfig) -> float:
             last,
             LearningRateMonitor("step"),
             *FrameStripLogger.from_config(cfg),
-            *([] if progress_every is None else [ProgressLog(cfg.iterations, progress_every)]),
+            *progress,
         ],
     )
     if trainer.is_global_zero:
@@ -170,7 +168,7 @@ def train(cfg: DictConfig) -> float:
     start = time.perf_counter()
     with warnings.catch_warnings():
         # False here: the training sampler continues a resumed epoch at the exact batch
-        # (dm.resume_iteration above; tests/test_runs.py resumes bit for bit).
+        # (MotionPredictor.on_fit_start; tests/test_runs.py resumes bit for bit).
         warnings.filterwarnings("ignore", message=".*your dataloader is not resumable")
         trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
     wall = time.perf_counter() - start
@@ -182,7 +180,7 @@ def train(cfg: DictConfig) -> float:
     best = checkpoints.best_model_score
     score = float(best) if best is not None else final["euler_avg"]
     best_path = checkpoints.best_model_path  # of the whole run: BestCheckpoint carries it over
-    if trainer.is_global_zero and not cfg.trainer.get("fast_dev_run"):
+    if trainer.is_global_zero and not fast_dev_run:
         summary = {
             "best_val_euler_avg": score,
             "best_checkpoint": best_path,
@@ -194,7 +192,9 @@ def train(cfg: DictConfig) -> float:
             "train_time_s": round(timer.time_elapsed("train"), 1) if total_known else None,
             "resumed_at": done,
             "commit": run_info["commit"],
-            "device": _device_name(trainer),
+            "device": torch.cuda.get_device_name(0)
+            if trainer.strategy.root_device.type == "cuda"
+            else f"cpu ({os.cpu_count()} cores, {torch.get_num_threads()} threads)",
         }
         OmegaConf.save(OmegaConf.create(summary), out_dir / "summary.yaml")
         log.info("run folder: %s", out_dir)
@@ -202,12 +202,6 @@ def train(cfg: DictConfig) -> float:
         log.info("best checkpoint: %s", best_path or "none (no validation finished)")
         log.info("best average validation Euler error: %.4f", score)
     return score
-
-
-def _device_name(trainer: L.Trainer) -> str:
-    if trainer.accelerator.__class__.__name__.startswith("CUDA") and torch.cuda.is_available():
-        return torch.cuda.get_device_name(0)
-    return f"cpu ({os.cpu_count()} cores, {torch.get_num_threads()} threads)"
 
 
 def _train_or_discard(cfg: DictConfig) -> float:

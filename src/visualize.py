@@ -67,21 +67,15 @@ def _writer(fmt: str, fps: float):
     return PillowWriter(fps=fps), "gif"
 
 
-def _check_settings(cfg: DictConfig) -> None:
-    """The types first (src/lit/schema.py's VisualizeConfig): a word would fail deep in the
-    drawing with a traceback, int() would show window 1 for window=1.5, and any non-empty word
-    would read as true. Then the ranges; window's depends on the action: select_window names
-    it."""
+def visualize(cfg: DictConfig) -> dict[str, Path]:
+    """Write the animation and the frame strip of one window; return their paths."""
+    matplotlib.use("Agg")
+    # The types first: a word would fail deep in the drawing, window=1.5 would show window 1.
+    # window's range depends on the action: select_window checks it.
     validate_eval_config(cfg, VisualizeConfig)
     for key in ("observed_shown", "strip_step"):
         if cfg[key] < 1:
             raise ConfigError(f"{key}={cfg[key]} must be >= 1")
-
-
-def visualize(cfg: DictConfig) -> dict[str, Path]:
-    """Write the animation and the frame strip of one window; return their paths."""
-    matplotlib.use("Agg")
-    _check_settings(cfg)
     dm, module = build_for_evaluation(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)
     rows, n_obs, what = window_rows(

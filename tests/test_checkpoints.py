@@ -106,7 +106,7 @@ def test_last_ckpt_is_the_last_iteration_when_the_error_rises(
     assert int(last["state_dict"]["iteration"]) == 8 and last["epoch"] == 3
     # The best is the first validation (iteration 2), kept lean beside it.
     (best,) = (out / "checkpoints").glob("best-*.ckpt")
-    assert best.name == "best-epoch000.ckpt"
+    assert best.name == "best-iter000002.ckpt"  # named by its iteration
     assert int(_load(best)["state_dict"]["iteration"]) == 2
     assert score == summary["best_val_euler_avg"] == 2.0
     assert summary["best_checkpoint"] == str(best) and summary["last_checkpoint"] == str(
@@ -142,7 +142,7 @@ def test_last_ckpt_holds_the_final_validation_when_checkpoint_every_divides_val_
     one."""
     first = tmp_path / "first"
     _run(first, synthetic_data_dir, "iterations=4", "val_every=2", "checkpoint_every=2")
-    best_first = first / "checkpoints" / "best-epoch001.ckpt"
+    best_first = first / "checkpoints" / "best-iter000004.ckpt"
     last = _load(first / "checkpoints" / LAST)
     (best_state,) = [s for s in last["callbacks"].values() if "best_model_score" in s]
     assert float(best_state["best_model_score"]) == 1.0
@@ -257,7 +257,7 @@ def test_a_better_best_after_a_resume_deletes_nothing_of_the_earlier_folder(
     first = tmp_path / "first"
     _run(first, synthetic_data_dir, "iterations=4", "val_every=2")
     before = {p.name: p.read_bytes() for p in (first / "checkpoints").iterdir()}
-    assert "best-epoch001.ckpt" in before
+    assert "best-iter000004.ckpt" in before
 
     second = tmp_path / "second"
     score, summary = _run(
@@ -269,9 +269,49 @@ def test_a_better_best_after_a_resume_deletes_nothing_of_the_earlier_folder(
     )
     # Within its own folder the new best replaces its predecessor as usual.
     (best,) = (second / "checkpoints").glob("best-*.ckpt")
-    assert best.name == "best-epoch003.ckpt" and score == 92.0
+    assert best.name == "best-iter000008.ckpt" and score == 92.0
     assert summary["best_checkpoint"] == str(best)
     assert {p.name: p.read_bytes() for p in (first / "checkpoints").iterdir()} == before
+
+
+def test_each_validation_logs_one_line_with_the_best_so_far(
+    rising_error, tmp_path, synthetic_data_dir, caplog
+):
+    """The validation error was printed nowhere but TensorBoard: one line per validation
+    names the iteration, the average error at each horizon, the average and the best so far."""
+    with caplog.at_level("INFO", logger="src.lit.checkpoints"):
+        _run(tmp_path / "run", synthetic_data_dir, "iterations=4", "val_every=2")
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("validation")]
+    assert len(lines) == 2
+    assert lines[0].startswith("validation at iteration 2: Euler error 80 ms ")
+    assert ", 1000 ms " in lines[0]
+    assert lines[0].endswith("; average 2.0000 (best 2.0000: best-iter000002.ckpt)")
+    assert lines[1].endswith("; average 4.0000 (best 2.0000: best-iter000002.ckpt)")
+
+
+def test_a_best_checkpoint_of_the_earlier_naming_carries_over_a_resume(
+    rising_error, tmp_path, synthetic_data_dir
+):
+    """Runs before issue 40 named the best file by Lightning's epoch (best-epoch000.ckpt):
+    resuming such a run keeps it as the best, and it loads for evaluation."""
+    from src.lit.factory import load_trained
+
+    first = tmp_path / "first"
+    _run(first, synthetic_data_dir, "iterations=2", "val_every=2")
+    (best,) = (first / "checkpoints").glob("best-*.ckpt")
+    old = best.rename(best.with_name("best-epoch000.ckpt"))
+    last = _load(first / "checkpoints" / LAST)  # as the earlier version wrote it
+    (state,) = [s for s in last["callbacks"].values() if "best_model_path" in s]
+    state["best_model_path"] = str(old)
+    torch.save(last, first / "checkpoints" / LAST)
+
+    second = tmp_path / "second"
+    score, summary = _run(
+        second, synthetic_data_dir, "iterations=4", "val_every=2",
+        f"ckpt_path={first / 'checkpoints' / LAST}",
+    )  # fmt: skip
+    assert summary["best_checkpoint"] == str(old) and score == 2.0
+    assert int(load_trained(summary["best_checkpoint"]).iteration) == 2
 
 
 def test_resuming_from_a_lean_best_checkpoint_is_refused(tmp_path, synthetic_data_dir):

@@ -204,6 +204,34 @@ def test_partial_copy_allowed_reports_absent_actions(tmp_path, caplog):
         dm.test_sequence("eating", 1)
 
 
+def test_missing_files_are_counted_by_kind_and_the_message_says_what_is_done(tmp_path, caplog):
+    """Issue 40: training reported 20 missing files "training on what exists", evaluating a
+    checkpoint on the same copy 6 with the same words. Each says what it counts and does."""
+    SyntheticDataModule(tmp_path).prepare_data()
+    root = tmp_path / "synthetic"
+    (root / "h3.6m/dataset/S5/eating_2.txt").unlink()  # a test file
+    (root / "h3.6m/dataset/S1/smoking_1.txt").unlink()  # a training file
+    kwargs = {"actions": "walking,eating,smoking", "train_subjects": [1], "allow_partial": True}
+    messages, trained = {}, None
+    for stage in ("fit", "evaluate a checkpoint", "evaluate a baseline"):
+        dm = H36MDataModule(root, **kwargs, **SMALL)
+        if stage == "evaluate a checkpoint":  # the statistics a checkpoint carries
+            dm.set_normalizer(trained.normalizer)
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            dm.prepare_data()
+            dm.setup("fit" if stage == "fit" else "validate")
+        (messages[stage],) = [r.getMessage() for r in caplog.records if "missing" in r.msg]
+        trained = trained or dm
+    assert "2 h36m file(s) are missing" in messages["fit"]
+    assert "(1 training, 1 test); training on the files that exist" in messages["fit"]
+    checkpoint = messages["evaluate a checkpoint"]
+    assert "1 h36m test file(s) are missing" in checkpoint and "training on" not in checkpoint
+    assert "the checkpoint holds the normalisation); evaluating with the files" in checkpoint
+    baseline = messages["evaluate a baseline"]
+    assert "(1 training, 1 test); normalising and evaluating with the files" in baseline
+
+
 def test_missing_data_root(tmp_path, monkeypatch):
     monkeypatch.delenv("MOTION_ARCHIVES", raising=False)
     dm = H36MDataModule(tmp_path / "empty")

@@ -136,7 +136,7 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     (run_a,) = _run_folders(log_a)
 
     assert sorted(p.name for p in (run_a / "checkpoints").glob("best-*")) == [
-        "best-epoch000.ckpt"
+        "best-iter000002.ckpt"
     ], "the hook should make every later validation worse"
 
     # B: killed after the checkpoint of its second validation (no improvement).

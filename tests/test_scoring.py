@@ -435,6 +435,15 @@ def test_cli_bad_predictions_is_one_line_and_leaves_no_run_folder(tmp_path, synt
     assert not list((tmp_path / "out").rglob("*.json"))
 
 
+def test_a_scored_file_gets_a_folder_named_after_it(tmp_path, synthetic_data_dir):
+    """The run folder of `src.eval predictions=...` names the file and the data scored (it was
+    checkpoint_<data> whatever the file), as a checkpoint's or a baseline's folder does."""
+    overrides = [f"predictions={tmp_path}/gru_preds.npz", "data=synthetic"]
+    cfg = compose_config("eval", overrides, tmp_path / "out", synthetic_data_dir)
+    assert cfg.run_name == "predictions_gru_preds_synthetic"
+    assert f"{tmp_path}/out/eval/runs/predictions_gru_preds_synthetic/" in cfg.hydra.run.dir
+
+
 def test_help_of_both_commands_names_their_options(tmp_path):
     texts = {}
     for entry in ("src.export_windows", "src.eval"):

@@ -29,16 +29,14 @@ def _module_and_data(cfg):
     dm = build_datamodule(cfg.data)
     dm.prepare_data()
     dm.setup("fit")
-    module = build_module(cfg, dm)
-    dm.draws_per_step = 2 if module.adversarial else 1
-    return dm, module
+    return dm, build_module(cfg, dm)
 
 
 def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
     cfg = train_cfg("model=conv_s2s", "adversarial=li2018")
     L.seed_everything(0)
     dm, module = _module_and_data(cfg)
-    assert module.adversarial and dm.draws_per_step == 2
+    assert module.adversarial
     g_before = copy.deepcopy(module.net.state_dict())
     d_before = copy.deepcopy(module.discriminator.state_dict())
 
@@ -106,6 +104,7 @@ def test_l2_terms_reach_the_gradients_as_lambda_times_weight(train_cfg):
     cfg = train_cfg("model=conv_s2s", "adversarial=li2018")
     dm, module = _module_and_data(cfg)
     module.train()
+    dm.draws_per_step = 2  # what the module sets when a fit starts: one draw for D, one for G
     batch = next(iter(dm.train_dataloader()))
     lam_g, lam_d = 1e-2, 3e-2
     without = _gradients_of_one_step(module, batch, 0.0, 0.0)
@@ -245,9 +244,83 @@ def test_evaluation_is_float32_under_bf16_autocast(train_cfg):
     errors = []
     for bf16 in (False, True):
         with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
-            module._evaluate(batch)
+            module.validation_step(batch, 0)
         errors.append(torch.nan_to_num(module.euler.compute(), nan=-1.0))
         module.euler.reset()
         module.mpjpe.reset()
     assert (errors[0] > 0).any()
     assert torch.equal(errors[0], errors[1])
+
+
+TINY_ADV = [
+    "model=conv_s2s",
+    "model.net.nf=2",
+    "model.net.d_z=8",
+    "adversarial=li2018",
+    "adversarial.discriminator.nf=2",
+    "adversarial.discriminator.d_z=8",
+    "adversarial.discriminator.d_fc=8",
+    "data.batch_size=4",
+    "media_every=0",
+    "trainer.enable_progress_bar=false",
+]
+
+
+class _Batches(L.Callback):
+    """Records the training batches a fit hands to the module."""
+
+    def __init__(self):
+        self.seen = []
+
+    def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
+        self.seen.append(batch["observed"].clone())
+
+
+def _plain_fit(cfg, **trainer_kwargs):
+    """The ordinary Lightning pattern: the factory's module and datamodule, a plain Trainer."""
+    L.seed_everything(cfg.seed, workers=True, verbose=False)
+    dm, module = _module_and_data(cfg)
+    batches = _Batches()
+    trainer = L.Trainer(
+        accelerator="cpu",
+        logger=False,
+        enable_checkpointing=False,
+        enable_progress_bar=False,
+        enable_model_summary=False,
+        callbacks=[batches],
+        **trainer_kwargs,
+    )
+    trainer.fit(module, datamodule=dm)
+    return trainer, module, batches.seen
+
+
+def test_a_plain_trainer_trains_exactly_as_src_train(train_cfg, tmp_path):
+    """Issue 40: the module owns its batch draws and its length. Handed to a plain
+    `L.Trainer().fit(module, datamodule=dm)` it draws two batches per iteration (D and G on
+    different windows), stops at `iterations` with global_step == iterations, and ends with
+    src.train's weights, bit for bit, for the same seed."""
+    from src.train import train
+
+    cfg = train_cfg(*TINY_ADV, "checkpoint_every=0")
+    torch.set_num_threads(1)
+    train(cfg)
+    trained = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", weights_only=True)
+
+    trainer, module, seen = _plain_fit(cfg)
+    assert trainer.global_step == int(module.iteration) == cfg.iterations == 4
+    assert len(seen) == 4
+    for batch in seen:  # two draws of batch_size windows: one for D, one for G
+        assert batch.shape[0] == 2 * cfg.data.batch_size
+        assert not torch.equal(*batch.chunk(2))
+    state = module.state_dict()
+    assert trained["state_dict"].keys() == state.keys()
+    for key, value in trained["state_dict"].items():
+        assert torch.equal(value, state[key]), key
+    assert trained["global_step"] == 4
+
+
+def test_max_steps_counts_iterations(train_cfg):
+    """global_step counts iterations, not optimiser steps (two per adversarial iteration), so
+    a Trainer's max_steps=N trains N iterations."""
+    trainer, module, seen = _plain_fit(train_cfg(*TINY_ADV, "iterations=6"), max_steps=3)
+    assert trainer.global_step == int(module.iteration) == len(seen) == 3

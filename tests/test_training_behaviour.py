@@ -264,6 +264,7 @@ def test_both_optimisers_decay_their_learning_rate_on_schedule(setup):
         "adversarial.optimizer.lr=4e-3",
         "model.lr_decay_every=2",
         "model.lr_decay_gamma=0.5",
+        "iterations=6",  # the module stops a fit there; 5 batches here
     )
     steps = _fit(module(), [_batch(dm)] * 5)
     factors = [1, 1, 0.5, 0.5, 0.25]

@@ -262,25 +262,17 @@ def _remove_stale_temps(data_dir: Path, spec: DatasetSpec) -> None:
 def check_missing(
     spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool
 ) -> None:
-    """Full protocol: raise listing every missing file. Partial mode: warn with the list."""
-    if not missing:
+    """Full protocol: raise listing every missing file. Partial mode: the datamodule's setup
+    warns, saying what it reads and does without them."""
+    if not missing or allow_partial:
         return
     listing = "\n  ".join(missing)
-    if not allow_partial:
-        raise DataNotFoundError(
-            f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
-            f"  {listing}\n"
-            f"The full protocol needs all of them. Fix: get the complete archive "
-            f"({_how_to_get(spec)}), delete {data_dir / spec.root} and run again to unpack it; "
-            f"or set data.allow_partial=true to train on the files that exist and report the "
-            f"actions that cannot be evaluated as absent.",
-            missing,
-        )
-    log.warning(
-        "data.allow_partial=true: %d expected %s file(s) are missing under %s; training on what "
-        "exists, actions without their test files are reported as absent:\n  %s",
-        len(missing),
-        spec.name,
-        data_dir,
-        listing,
+    raise DataNotFoundError(
+        f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
+        f"  {listing}\n"
+        f"The full protocol needs all of them. Fix: get the complete archive "
+        f"({_how_to_get(spec)}), delete {data_dir / spec.root} and run again to unpack it; "
+        f"or set data.allow_partial=true to use the files that exist and report the "
+        f"actions that cannot be evaluated as absent.",
+        missing,
     )

@@ -138,7 +138,6 @@ class MotionDataModule(L.LightningDataModule):
         self._eval_dataset: EvalWindowDataset | None = None
         self._test_raw: dict[str, np.ndarray] = {}
         self._test_entries: dict[str, list[FileEntry]] = {}
-        self._warned_missing = False
         self._given_normalizer: Normalizer | None = None
         self._stage: str | None = None
 
@@ -150,24 +149,6 @@ class MotionDataModule(L.LightningDataModule):
     @property
     def _eval_only(self) -> bool:
         return self._given_normalizer is not None and self._stage != "fit"
-
-    def _plain_hparams(self) -> None:
-        """Store paths and OmegaConf lists as plain str/list in ``hparams``: checkpoints then
-        load with torch.load(weights_only=True), which refuses pathlib and omegaconf objects."""
-
-        def plain(v):
-            if v is None or isinstance(v, (str, int, float, bool)):
-                return v
-            if isinstance(v, os.PathLike):
-                return os.fspath(v)
-            if isinstance(v, (tuple, list)):
-                return type(v)(plain(x) for x in v)
-            if isinstance(v, Iterable):
-                return [plain(x) for x in v]
-            return str(v)
-
-        for key, value in list(self.hparams.items()):
-            self.hparams[key] = plain(value)
 
     # ---- dataset-specific parts -------------------------------------------------------------
 
@@ -209,8 +190,6 @@ class MotionDataModule(L.LightningDataModule):
     def prepare_data(self) -> None:
         """Unpack the archive if needed and parse every present file into the cache."""
         train, test = self._locate()
-        if self._eval_only:
-            train = []
         present = [e.relpath for e in train + test if e.relpath not in self.missing_files]
         load_sequences(self.data_dir, self.spec, present)
 
@@ -220,10 +199,30 @@ class MotionDataModule(L.LightningDataModule):
         if self._eval_only:
             train = []
         self.missing_files = missing_files(self.data_dir, train + test)
-        if not self._warned_missing or not self.allow_partial:
-            check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
-            self._warned_missing = True
+        check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
         return train, test
+
+    def _warn_missing(self, train: list[FileEntry]) -> None:
+        """data.allow_partial=true: what is missing, counted by kind, and what is done."""
+        n_train = sum(e.relpath in self.missing_files for e in train)
+        n_test = len(self.missing_files) - n_train
+        if self._eval_only:
+            kind, doing = "test ", "evaluating with"
+            counted = "training files are not needed: the checkpoint holds the normalisation"
+        else:
+            kind, counted = "", f"{n_train} training, {n_test} test"
+            doing = "training on" if self._stage == "fit" else "normalising and evaluating with"
+        log.warning(
+            "data.allow_partial=true: %d %s %sfile(s) are missing under %s (%s); %s the files "
+            "that exist, the actions without their test files reported as absent:\n  %s",
+            len(self.missing_files),
+            self.spec.name,
+            kind,
+            self.data_dir,
+            counted,
+            doing,
+            "\n  ".join(self.missing_files),
+        )
 
     def setup(self, stage: str | None = None) -> None:
         """Load, normalise and window the data (once; later calls are no-ops)."""
@@ -232,6 +231,8 @@ class MotionDataModule(L.LightningDataModule):
         self._stage = stage
         train, test = self._locate()
         missing = set(self.missing_files)
+        if missing:  # only with allow_partial: _locate raised otherwise
+            self._warn_missing(train)
         train = [e for e in train if e.relpath not in missing]
         present_test = [e for e in test if e.relpath not in missing]
         raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
@@ -309,6 +310,14 @@ class MotionDataModule(L.LightningDataModule):
         eval_base = WindowDataset(eval_seqs, eval_labels, self.observed_len, self.future_len)
         self._eval_dataset = EvalWindowDataset(eval_base, pairs)
         self.normalizer = normalizer
+
+    def leave_out(self, absent: dict[str, str]) -> None:
+        """Evaluate without the windows of these actions, reported absent with the reason."""
+        keep = [i for i, w in enumerate(self.eval_windows) if w.action not in absent]
+        self.eval_windows = [self.eval_windows[i] for i in keep]
+        pairs = [self._eval_dataset.windows[i] for i in keep]
+        self._eval_dataset = EvalWindowDataset(self._eval_dataset.base, pairs)
+        self.absent_actions.update(absent)
 
     def _action_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
         low = TRAIN_START_LOW[self.dataset_name]

@@ -59,8 +59,6 @@ class CMUDataModule(MotionDataModule):
             num_workers,
             seed,
         )
-        self.save_hyperparameters()
-        self._plain_hparams()
 
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
         return cmu_files(self.actions, "train"), cmu_files(self.actions, "test")

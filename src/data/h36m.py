@@ -82,8 +82,6 @@ class H36MDataModule(MotionDataModule):
                 f"observed_len + future_len = {self.window_len} (fix: future_len <= "
                 f"{SRNN_PREFIX + SRNN_SUFFIX - self.observed_len}, or data.eval_protocol=random)"
             )
-        self.save_hyperparameters()
-        self._plain_hparams()
 
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
         return (

@@ -1,19 +1,12 @@
-"""Everything about checkpoint files: writing them during training, reading and checking them.
+"""Checkpoint files: writing them during training, reading and checking them. Two per run:
 
-Two files per run folder, with two purposes:
-
-- `last.ckpt`, the run's resume point: everything needed to continue (weights, both
-  optimisers, LR schedulers, loop counters, random state). Rewritten at every validation,
-  every `checkpoint_every` iterations and when SIGINT/SIGTERM arrive, always atomically
-  (written beside, then renamed), so a kill during a write leaves the previous one intact.
-- `best-epochNNN.ckpt`, the best validation error of the whole run, resumes included: lean
-  (weights, normaliser, config and actions; no optimiser state), for `src.eval` and
-  `MotionForecaster`.
-
-Why not Lightning's ModelCheckpoint(save_last=True) alone: in Lightning 2.6, with validation
-at the epoch's end, it rewrites last.ckpt only in a call that also wrote a top-k file, i.e.
-only when the monitored error improved (model_checkpoint.py, on_validation_end). A run whose
-error rose after its best point kept an old last.ckpt and a resume silently redid the work.
+- `last.ckpt`, the resume point (weights, both optimisers, LR schedulers, loop counters, random
+  state), rewritten atomically at every validation, every `checkpoint_every` iterations and on
+  SIGINT/SIGTERM. Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it only with a new
+  best, so a run whose error rose kept an old one and a resume silently redid the work.
+- `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40), the best validation of the
+  whole run, resumes included, named by its iteration: lean (weights, normaliser, config,
+  actions), for `src.eval` and `MotionForecaster`.
 """
 
 from __future__ import annotations
@@ -136,7 +129,8 @@ class LastCheckpoint(Checkpoint):
 
 
 class BestCheckpoint(ModelCheckpoint):
-    """Lean `best-epochNNN.ckpt` of the lowest validation error over the whole run.
+    """Lean `best-iterNNNNNN.ckpt` of the lowest validation error over the whole run; logs one
+    line per validation (iteration, error at each horizon, best so far).
 
     A resumed run writes into a new folder; Lightning then forgets the best score
     (ModelCheckpoint.load_state_dict keeps it only for the same dirpath) and would save a worse
@@ -148,7 +142,7 @@ class BestCheckpoint(ModelCheckpoint):
         super().__init__(
             dirpath=dirpath,
             # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
-            filename="best-epoch{epoch:03d}",
+            filename="best-iter{iteration:06d}",
             auto_insert_metric_name=False,
             monitor=monitor,
             mode="min",
@@ -156,6 +150,36 @@ class BestCheckpoint(ModelCheckpoint):
             save_top_k=1,
             save_weights_only=True,
         )
+        self._line: str | None = None  # the last validation's, logged once the best is saved
+
+    def _monitor_candidates(self, trainer: L.Trainer) -> dict[str, torch.Tensor]:
+        # The file name's count: the module's, which a resumed checkpoint of any version holds
+        # (Lightning's step counted 2 per adversarial iteration before this version).
+        iteration = torch.tensor(trainer.lightning_module.host_iteration)
+        return {**super()._monitor_candidates(trainer), "iteration": iteration}
+
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_validation_end(trainer, pl_module)
+        metrics, prefix = trainer.callback_metrics, "val_euler/average/"
+        if trainer.sanity_checking or not trainer.is_global_zero or self.monitor not in metrics:
+            return
+        horizons = ", ".join(
+            f"{int(k[len(prefix) : -2])} ms {float(v):.3f}"
+            for k, v in sorted(metrics.items())
+            if k.startswith(prefix)
+        )
+        self._line = (
+            f"validation at iteration {pl_module.host_iteration}: Euler error {horizons}; "
+            f"average {float(metrics[self.monitor]):.4f}"
+        )
+
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_train_epoch_end(trainer, pl_module)  # the best is saved here (val_every)
+        line, self._line = self._line, None
+        if line is not None:
+            best, path = self.best_model_score, Path(self.best_model_path).name
+            best = "no best" if best is None else f"best {float(best):.4f}: {path}"
+            log.info("%s (%s)", line, best)
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         if state_dict.get("dirpath", self.dirpath) == self.dirpath:
@@ -180,17 +204,10 @@ class BestCheckpoint(ModelCheckpoint):
 # ---------------------------------------------------------------------------- reading
 def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
-    if path.is_dir():
-        # Name the files that are there: the folder may be a run's or its checkpoints/.
+    if path.is_dir():  # name the files there: the folder may be a run's or its checkpoints/
         found = sorted(path.glob("*.ckpt")) or sorted(path.glob("checkpoints/*.ckpt"))
-        if found:
-            raise CheckpointError(
-                f"{path} is a folder; give a checkpoint file: {' or '.join(map(str, found))}"
-            )
-        raise CheckpointError(
-            f"{path} is a folder; give a checkpoint file inside it, e.g. "
-            f"{path / 'checkpoints' / LAST}"
-        )
+        example = " or ".join(map(str, found)) or f"e.g. {path / 'checkpoints' / LAST}"
+        raise CheckpointError(f"{path} is a folder; give a checkpoint file: {example}")
     if not path.is_file():
         raise CheckpointError(
             f"checkpoint not found: {path}. Runs keep theirs in "
@@ -261,16 +278,14 @@ def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
             f"data={cfg.data.name}"
         )
     if cfg.get("model") is not None and not problems:
-        want = OmegaConf.to_container(cfg.model.net, resolve=True)
-        have = saved["model"]["net"]
+        want, have = OmegaConf.to_container(cfg.model.net, resolve=True), saved["model"]["net"]
         diff = [
-            k for k in want if k != "padding" and k in have and want[k] != have[k] and k[0] != "_"
+            f"{k}={have[k]} in checkpoint vs {v}"
+            for k, v in want.items()
+            if k in have and k != "padding" and k[0] != "_" and v != have[k]
         ]
         if diff:
-            problems.append(
-                "architecture settings: "
-                + ", ".join(f"{k}={have[k]} in checkpoint vs {want[k]}" for k in diff)
-            )
+            problems.append("architecture settings: " + ", ".join(diff))
     if problems:
         raise CheckpointError(
             f"checkpoint {path} does not match the config: "

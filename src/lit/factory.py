@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import inspect
 import subprocess
-from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import hydra
@@ -87,29 +87,6 @@ def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None)
     return dm
 
 
-@dataclass(frozen=True)
-class DataFacts:
-    """What building a model needs to know of its data. A set-up MotionDataModule has all of
-    it (build_module takes either); a checkpoint holds it too, so `load_trained` rebuilds a
-    model without its data files."""
-
-    normalizer: Normalizer
-    actions: list[str]
-    dataset_name: str
-    conv_padding: str
-    frame_ms: float
-    observed_len: int
-    future_len: int
-
-    @property
-    def pose_dim(self) -> int:
-        return self.normalizer.pose_dim
-
-    @property
-    def num_actions(self) -> int:
-        return len(self.actions)
-
-
 # ---------------------------------------------------------------------------- models
 def _instantiate_with_data(node: DictConfig, dm, **extra):
     """Instantiate a network config, filling in what only the data knows (pose dimension,
@@ -127,38 +104,37 @@ def _instantiate_with_data(node: DictConfig, dm, **extra):
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
     """The LightningModule for `cfg.model` (+ `cfg.adversarial`, `cfg.sampling`) on `dm`, a
-    set-up datamodule or the DataFacts of a checkpoint."""
+    set-up datamodule or what load_trained reads of a checkpoint."""
     net = _instantiate_with_data(cfg.model.net, dm)
-    adv = cfg.get("adversarial") or {"enabled": False}
-    discriminator = d_optimizer = None
     trainable = any(p.requires_grad for p in net.parameters())
+    model, adv, compile_ = cfg.model, cfg.get("adversarial") or {}, cfg.get("compile") or {}
+    settings = ("lr_decay_every", "lr_decay_gamma", "lambda_2", "grad_clip_norm")
+    kwargs = {k: model[k] for k in settings if k in model}
     if adv.get("enabled") and trainable:
-        discriminator = _instantiate_with_data(
-            adv.discriminator, dm, seq_len=dm.observed_len + dm.future_len
-        )
-        d_optimizer = hydra.utils.instantiate(adv.optimizer)
+        kwargs |= {
+            "discriminator": _instantiate_with_data(
+                adv.discriminator, dm, seq_len=dm.observed_len + dm.future_len
+            ),
+            "d_optimizer": hydra.utils.instantiate(adv.optimizer),
+            "lambda_adv": adv.get("lambda_adv", 0.0),
+            "lambda_2_d": adv.get("lambda_2", 0.0),
+            "reference_fake_slot": adv.get("reference_fake_slot", False),
+        }
     return MotionPredictor(
-        net=net,
-        normalizer=dm.normalizer,
+        net,
+        dm.normalizer,
         dataset=dm.dataset_name,
         actions=dm.actions,
         frame_ms=dm.frame_ms,
         future_len=dm.future_len,
-        optimizer=hydra.utils.instantiate(cfg.model.optimizer) if trainable else None,
-        lr_decay_every=cfg.model.get("lr_decay_every", 10000),
-        lr_decay_gamma=cfg.model.get("lr_decay_gamma", 1.0),
-        lambda_2=cfg.model.get("lambda_2", 0.0),
-        grad_clip_norm=cfg.model.get("grad_clip_norm"),
+        optimizer=hydra.utils.instantiate(model.optimizer) if trainable else None,
         eta_schedule=_instantiate(cfg.sampling) if cfg.get("sampling") else None,
-        discriminator=discriminator,
-        d_optimizer=d_optimizer,
-        lambda_adv=adv.get("lambda_adv", 0.0) if discriminator is not None else 0.0,
-        lambda_2_d=adv.get("lambda_2", 0.0),
-        reference_fake_slot=adv.get("reference_fake_slot", False),
         dim_rule=cfg.metrics.dim_rule,
         run_info=run_info,
-        compile=cfg.get("compile", {}).get("enabled", False),
-        compile_mode=cfg.get("compile", {}).get("mode", "reduce-overhead"),
+        compile=compile_.get("enabled", False),
+        compile_mode=compile_.get("mode", "reduce-overhead"),
+        iterations=cfg.get("iterations"),
+        **kwargs,
     )
 
 
@@ -181,15 +157,16 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     normalizer.load_state_dict(
         {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
     )
-    data = hydra.utils.get_class(saved.data._target_)  # the class attributes only
-    facts = DataFacts(
-        normalizer,
-        list(motion["actions"]),
-        data.dataset_name,
-        data.conv_padding,
-        data.frame_ms,
-        saved.data.observed_len,
-        saved.data.future_len,
+    # What build_module reads of a set-up datamodule: a checkpoint holds it too, so no data
+    # file is read (the class attributes of the data config's datamodule, the saved lengths).
+    data, actions = hydra.utils.get_class(saved.data._target_), list(motion["actions"])
+    facts = SimpleNamespace(
+        normalizer=normalizer,
+        pose_dim=normalizer.pose_dim,
+        actions=actions,
+        num_actions=len(actions),
+        **{k: getattr(data, k) for k in ("dataset_name", "conv_padding", "frame_ms")},
+        **{k: saved.data[k] for k in ("observed_len", "future_len")},
     )
     if cfg is not None and cfg.get("metrics") is not None:
         saved.metrics = cfg.metrics
@@ -210,6 +187,22 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     return module.eval()
 
 
+def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normalizer=None):
+    """The set-up datamodule of the test windows of `data_cfg` (default: `cfg.data`) under
+    `cfg.protocol` (default: the data config's own, srnn)."""
+    if data_cfg is None and cfg.get("data") is None:
+        raise ConfigError(
+            "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
+        )
+    data_cfg = (cfg.data if data_cfg is None else data_cfg).copy()
+    if cfg.get("protocol"):
+        data_cfg.eval_protocol = cfg.protocol
+    dm = build_datamodule(data_cfg, normalizer=normalizer)
+    dm.prepare_data()
+    dm.setup("validate")
+    return dm
+
+
 def build_for_evaluation(cfg: DictConfig):
     """(datamodule of the test windows, module) for src.eval and src.visualize: the trained
     model of `cfg.ckpt_path` on its own data config, or the baseline of `cfg.model` on
@@ -223,21 +216,13 @@ def build_for_evaluation(cfg: DictConfig):
         if cfg.get("data") is not None:  # evaluation settings (protocol, windows) may differ
             for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
                 data_cfg[key] = cfg.data[key]
-        normalizer = module.normalizer
-    elif cfg.get("model") is None or cfg.get("data") is None:
+        return build_test_data(cfg, data_cfg, module.normalizer), module
+    if cfg.get("model") is None or cfg.get("data") is None:
         raise ConfigError(
             "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
             "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
         )
-    else:
-        data_cfg, normalizer = cfg.data.copy(), None
-    if cfg.get("protocol"):
-        data_cfg.eval_protocol = cfg.protocol
-    dm = build_datamodule(data_cfg, normalizer=normalizer)
-    dm.prepare_data()
-    dm.setup("validate")
-    if cfg.ckpt_path:
-        return dm, module
+    dm = build_test_data(cfg)
     config = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in ("model", "data")}
     module = build_module(cfg, dm, run_info={"commit": git_commit(), "config": config})
     if module.trainable:

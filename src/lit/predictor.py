@@ -1,14 +1,11 @@
 """The LightningModule shared by every architecture and baseline.
 
-One training iteration of Li et al. (protocol §6.6) alternates two objectives with manual
-optimisation:
-
-1. the discriminator objective, eq. (8), on one batch;
-2. the generator objective, eq. (9) = reconstruction (7) + lambda_2 * L2(weights)
-   + lambda_adv * adversarial term, on a *different* batch.
-
-Without a discriminator the same code runs step 2 alone, which is plain (7) + L2 for the
-convolutional model and Martinez et al.'s loss for the GRU (lambda_2 = 0, gradient clipping 5).
+One training iteration of Li et al. (protocol §6.6), optimised by hand: the discriminator
+objective, eq. (8), on one batch, then the generator objective, eq. (9) = reconstruction (7) +
+lambda_2 * L2(weights) + lambda_adv * adversarial term, on a *different* batch; without a
+discriminator the generator's step alone ((7) + L2 for the convolutional model, Martinez et
+al.'s loss for the GRU). Given to any Trainer with its datamodule it trains as src.train does:
+it sets the draws per iteration, stops at `iterations`, and global_step counts iterations.
 Validation decodes fully autoregressively (eta = 1, dropout off) on the protocol's test windows
 and reports the Euler-angle error (protocol §4) and MPJPE per action and horizon.
 """
@@ -52,14 +49,10 @@ def _host(value: float) -> Tensor:
 
 
 def add_l2_gradient_(module: nn.Module, weight: float) -> None:
-    """Add the gradient of weight * l2_penalty(module), weight * w, to every weight's .grad.
-
-    Why not backpropagate through the penalty: the graph of w^2 over all 16M weights of
-    generator and discriminator and its backward took 85 ms of a 1.16 s conv_s2s + adversarial
-    step on one CPU thread; the closed form takes 3 ms and differs only in rounding
-    (tests/test_train.py compares the two). Called after backward, before clipping and the
-    optimiser step, where autograd would have put it.
-    """
+    """Add the gradient of weight * l2_penalty(module), weight * w, to every weight's .grad,
+    after backward and before clipping and the step, where autograd would have put it. Not
+    backpropagated: that graph over the 16M weights took 85 ms of a 1.16 s conv_s2s +
+    adversarial CPU step; this takes 3 ms (tests/test_train.py compares the two)."""
     for p in module.parameters():
         if p.ndim > 1 and p.grad is not None:
             p.grad.add_(p.detach(), alpha=weight)
@@ -90,31 +83,22 @@ class MotionPredictor(L.LightningModule):
         run_info: dict[str, Any] | None = None,
         compile: bool | str = False,
         compile_mode: str = "reduce-overhead",
+        iterations: int | None = None,
     ):
         super().__init__()
         if compile not in (True, False, "auto"):
-            raise ValueError(
-                f"compile must be true, false or auto (on a CUDA device), got {compile!r}"
-            )
+            raise ValueError(f"compile must be true, false or auto (on CUDA), got {compile!r}")
         self.automatic_optimization = False
-        self.net = net
-        self.normalizer = normalizer
-        self.discriminator = discriminator
-        self.dataset = dataset
-        self.actions = list(actions)
-        self.frame_ms = frame_ms
+        self.net, self.normalizer, self.discriminator = net, normalizer, discriminator
+        self.dataset, self.actions, self.frame_ms = dataset, list(actions), frame_ms
         self.future_len = future_len
-        self.optimizer_factory = optimizer
-        self.d_optimizer_factory = d_optimizer
-        self.lr_decay_every = lr_decay_every
-        self.lr_decay_gamma = lr_decay_gamma
-        self.lambda_2 = lambda_2
-        self.grad_clip_norm = grad_clip_norm
-        self.eta_schedule = eta_schedule
-        self.lambda_adv = lambda_adv
-        self.lambda_2_d = lambda_2_d
-        self.reference_fake_slot = reference_fake_slot
+        self.optimizer_factory, self.d_optimizer_factory = optimizer, d_optimizer
+        self.lr_decay_every, self.lr_decay_gamma = lr_decay_every, lr_decay_gamma
+        self.lambda_2, self.grad_clip_norm = lambda_2, grad_clip_norm
+        self.lambda_adv, self.lambda_2_d = lambda_adv, lambda_2_d
+        self.eta_schedule, self.reference_fake_slot = eta_schedule, reference_fake_slot
         self.run_info = run_info or {}
+        self.iterations = iterations  # where a fit stops (None: the Trainer's limits alone)
         # torch.compile the two objectives of a training iteration (True; "auto": on a CUDA
         # device only); off by default, see conf/train.yaml.
         self.compile_step, self.compile_mode = compile, compile_mode
@@ -148,8 +132,7 @@ class MotionPredictor(L.LightningModule):
                 f"{type(self.net).__name__} has no trainable parameters; evaluate it with "
                 "`python -m src.eval model=...` instead of training it."
             )
-        opt_g = self.optimizer_factory(params=self.net.parameters())
-        optimizers = [opt_g]
+        optimizers = [self.optimizer_factory(params=self.net.parameters())]
         if self.adversarial:
             optimizers.append(self.d_optimizer_factory(params=self.discriminator.parameters()))
         # lr x gamma every `lr_decay_every` iterations (protocol §5, §6.6); stepped once per
@@ -160,8 +143,7 @@ class MotionPredictor(L.LightningModule):
         ]
         return optimizers, schedulers
 
-    def on_train_start(self) -> None:
-        # After a resume restored `iteration`; the compile decision on the fit's device.
+    def on_train_start(self) -> None:  # after a resume restored `iteration`; on the fit's device
         self._host_iteration, self._compiled = None, None
 
     def on_fit_start(self) -> None:
@@ -171,34 +153,43 @@ class MotionPredictor(L.LightningModule):
                 "trainer.precision=16-mixed scales the gradients, which the L2 term of eq. (9) "
                 "is added to unscaled; use trainer.precision=32 (default) or bf16-mixed"
             )
+        # The module owns its draws: with the regulariser each iteration takes two batches,
+        # one for D and one for G (protocol 6.6), and a resumed fit (its `iteration` restored
+        # by now, before the training loader is made) continues its epoch's batches.
+        dm = self.trainer.datamodule
+        if hasattr(dm, "draws_per_step"):
+            dm.draws_per_step = 2 if self.adversarial else 1
+            dm.resume_iteration = int(self.iteration)
+
+    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
+        # Stop at `iterations`, after this iteration's validation (Lightning runs it when
+        # should_stop is set) and the checkpoint written at the epoch's end.
+        if self.iterations is not None and self.host_iteration >= self.iterations:
+            self.trainer.should_stop = True
 
     @property
     def host_iteration(self) -> int:
-        """`iteration` as a Python int: read from the device once per fit (on a GPU each read
-        is a host sync, a stall of the launch queue), then counted on the host."""
+        """`iteration` as a Python int: read from the device once per fit (on a GPU a read is
+        a host sync), then counted on the host."""
         if self._host_iteration is None:
             self._host_iteration = int(self.iteration)
         return self._host_iteration
 
     def _eta(self) -> float:
-        if self.eta_schedule is None:
-            return 1.0
-        eta = float(self.eta_schedule(self.host_iteration))
+        eta = 1.0 if self.eta_schedule is None else float(self.eta_schedule(self.host_iteration))
         if not 0.0 <= eta <= 1.0:  # checked here: the compiled step's tensor eta is not read
             raise ValueError(
-                f"the eta schedule gave {eta} at iteration "
-                f"{self.host_iteration}; eta must lie in [0, 1]"
+                f"the eta schedule gave {eta} at iteration {self.host_iteration}; eta must lie "
+                "in [0, 1]"
             )
         return eta
 
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
         """The 75-frame sequence the discriminator judges: the observed frames, then the ground
-        truth `future` (the real sample) or the prediction `fake`.
-
-        The reference code put the first ground-truth future frame in the slot of the last
-        observed frame of the fake sample only (protocol §6.5: w[0..48], w[50], predictions;
-        the real sample is w[0..74]); `reference_fake_slot` reproduces that for comparison.
-        """
+        truth `future` (the real sample) or the prediction `fake`. The reference code put the
+        first ground-truth future frame in the slot of the last observed frame of the fake
+        sample only (protocol §6.5: w[0..48], w[50], predictions; the real sample is w[0..74]);
+        `reference_fake_slot` reproduces that for comparison."""
         if fake is None:
             return torch.cat([observed, future], dim=1)
         if self.reference_fake_slot:
@@ -217,9 +208,8 @@ class MotionPredictor(L.LightningModule):
             [self._sequence(observed, future), self._sequence(observed, future, fake)]
         )
         logit_real, logit_fake = self.discriminator(real_and_fake, action.repeat(2)).chunk(2)
-        loss = F.binary_cross_entropy_with_logits(
-            logit_real, torch.ones_like(logit_real)
-        ) + F.binary_cross_entropy_with_logits(logit_fake, torch.zeros_like(logit_fake))
+        bce, ones, zeros = F.binary_cross_entropy_with_logits, torch.ones_like, torch.zeros_like
+        loss = bce(logit_real, ones(logit_real)) + bce(logit_fake, zeros(logit_fake))
         return loss, logit_real.detach().mean()
 
     def _g_objective(
@@ -239,8 +229,7 @@ class MotionPredictor(L.LightningModule):
     def _objectives(self):
         """(discriminator, generator) objective functions: eager, or compiled (see `compile`)."""
         if self._compiled is None:
-            # auto: not under DDP, where compiling a bound method of the inner module is not
-            # what torch's DDP graph splitting expects (untested there).
+            # auto: not under DDP (compiling a bound method of the inner module: untested).
             single = self._trainer is None or self.trainer.world_size == 1
             on = self.compile_step is True or (
                 self.compile_step == "auto" and self.device.type == "cuda" and single
@@ -251,45 +240,35 @@ class MotionPredictor(L.LightningModule):
                 # in the process under the same two functions and, with fullgraph, refuses
                 # their 9th (recompile_limit): a sweep of model structures would stop there.
                 torch.compiler.reset()
-                # Static shapes and one graph per objective: reduce-overhead captures each
-                # (forward and backward) in a CUDA graph, so a step is a few graph launches
-                # instead of thousands of kernels (the GPU step was launch-bound).
+                # One static graph per objective: reduce-overhead captures each (forward and
+                # backward) in a CUDA graph, a few launches instead of thousands of kernels.
                 d = torch.compile(d, mode=self.compile_mode, fullgraph=True)
                 g = torch.compile(g, mode=self.compile_mode, fullgraph=True)
             self._compiled = (on, d, g)
         return self._compiled
 
-    def _eta_input(self, eta: float, compiled: bool) -> float | Tensor:
-        """eta for the objectives: a float in eager mode; compiled, a tensor refilled in place,
-        so a new value neither recompiles nor syncs."""
-        if not compiled:
-            return eta
-        if self._eta_tensor is None or self._eta_tensor.device != self.device:
-            self._eta_tensor = torch.zeros((), device=self.device)
-        return self._eta_tensor.fill_(eta)
-
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         observed, future, action = batch["observed"], batch["future"], batch["action"]
-        eta = self._eta()
+        eta_in = eta = self._eta()
         compiled, d_objective, g_objective = self._objectives()
         if compiled:
             # One training iteration: outputs of the previous one's CUDA graphs may be reused.
             torch.compiler.cudagraph_mark_step_begin()
-        eta_in = self._eta_input(eta, compiled)
-        optimizers = self.optimizers()
+            # eta as a tensor refilled in place: a new value neither recompiles nor syncs.
+            if self._eta_tensor is None or self._eta_tensor.device != self.device:
+                self._eta_tensor = torch.zeros((), device=self.device)
+            eta_in = self._eta_tensor.fill_(eta)
+        optimizers, schedulers = self.optimizers(), self.lr_schedulers()
         optimizers = optimizers if isinstance(optimizers, list) else [optimizers]
-        schedulers = self.lr_schedulers()
         schedulers = schedulers if isinstance(schedulers, list) else [schedulers]
         logs: dict[str, Tensor] = {"train/eta": _host(eta)}
         d_losses: dict[str, Tensor] = {}
 
         if self.adversarial:
-            # The discriminator and generator see different random batches (protocol §6.6);
-            # the datamodule draws two batches per step for this.
+            # The discriminator and generator see different random batches (protocol §6.6):
+            # each iteration's batch holds two draws (on_fit_start).
             (obs_d, obs_g), (fut_d, fut_g), (act_d, act_g) = (
-                observed.chunk(2),
-                future.chunk(2),
-                action.chunk(2),
+                t.chunk(2) for t in (observed, future, action)
             )
             opt_d = optimizers[1]
             self.toggle_optimizer(opt_d)
@@ -299,7 +278,9 @@ class MotionPredictor(L.LightningModule):
             opt_d.zero_grad()
             self.manual_backward(loss_d_adv)
             add_l2_gradient_(self.discriminator, self.lambda_2_d)
-            opt_d.step()
+            # The torch optimiser itself: Lightning counts every step of its wrapper as a
+            # global step, so global_step (max_steps, logging) would count 2 per iteration.
+            getattr(opt_d, "optimizer", opt_d).step()
             self.untoggle_optimizer(opt_d)
             # Clones: a CUDA graph's outputs are overwritten by its next replay.
             logs["train/loss_d"] = loss_d.clone()
@@ -313,9 +294,8 @@ class MotionPredictor(L.LightningModule):
         loss_recon = loss_recon.clone()
         loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else loss_recon.new_zeros(())
         loss_g = loss_backprop.detach() + self.lambda_2 * loss_l2
-        # Once per iteration, before the generator's step: a check is a host sync. A
-        # non-finite loss_d has then moved the discriminator already, but nothing is saved
-        # after this error (the last good last.ckpt stays) and it names loss_d alone.
+        # Once per iteration (a host sync), before G's step. A non-finite loss_d has moved D
+        # already, but nothing is saved after this error, which names loss_d alone.
         self._check_finite(d_losses, {"loss_g": loss_g, "loss_recon": loss_recon})
         opt_g.zero_grad()
         self.manual_backward(loss_backprop)
@@ -334,14 +314,8 @@ class MotionPredictor(L.LightningModule):
         self._host_iteration = self.host_iteration + 1
         self.iteration += 1
 
-        logs.update(
-            {
-                "train/loss_g": loss_g,
-                "train/loss_recon": loss_recon,
-                "train/loss_l2": loss_l2,
-                "train/lr": _host(opt_g.param_groups[0]["lr"]),
-            }
-        )
+        logs |= {"train/loss_g": loss_g, "train/loss_recon": loss_recon, "train/loss_l2": loss_l2}
+        logs["train/lr"] = _host(opt_g.param_groups[0]["lr"])
         if self.adversarial:
             logs["train/lr_d"] = _host(optimizers[1].param_groups[0]["lr"])
         self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
@@ -376,37 +350,30 @@ class MotionPredictor(L.LightningModule):
         """Fully autoregressive prediction in normalised space (eta = 1, no ground truth)."""
         return self.net(observed, future_len, action=action)
 
+    def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
+        """The unnormalised prediction (B, T, F) for a batch of test windows: the network's,
+        fully autoregressive. src.scoring puts a file's predictions in its place."""
+        pred = self(batch["observed"], batch["future"].shape[1], action=batch["action"])
+        return self.normalizer.unnormalize(pred)
+
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        self._evaluate(batch)
-
-    def test_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        self._evaluate(batch)
-
-    def _evaluate(self, batch: dict[str, Tensor]) -> None:
         # Always in float32: under trainer.precision=bf16-mixed, Lightning's autocast would run
         # the prediction and the metrics' rotations in bfloat16 and move reported errors by
         # up to half their printed precision (0.01 rad).
         with torch.autocast(batch["future"].device.type, enabled=False):
-            future = batch["future"]
-            pred = self(batch["observed"], future.shape[1], action=batch["action"])
-            pred_full = self.normalizer.unnormalize(pred)
+            pred_full = self.predict_windows(batch)
             # Ground truth goes through the same unnormalisation as the prediction, as in the
             # reference code (protocol §2.2, §4.1).
-            gt_full = self.normalizer.unnormalize(future)
+            gt_full = self.normalizer.unnormalize(batch["future"])
             gt_obs_full = self.normalizer.unnormalize(batch["observed"])
             self.euler.update(pred_full, gt_full, batch["action"], gt_observed_full=gt_obs_full)
             self.mpjpe.update(pred_full, gt_full, batch["action"])
 
-    def on_validation_epoch_end(self) -> None:
-        self._finish_evaluation("val")
+    test_step = validation_step
 
-    def on_test_epoch_end(self) -> None:
-        self._finish_evaluation("test")
-
-    def _finish_evaluation(self, stage: str) -> None:
+    def on_validation_epoch_end(self, stage: str = "val") -> None:
         euler, mpjpe = self.euler.compute(), self.mpjpe.compute()
-        self.euler.reset()
-        self.mpjpe.reset()
+        self.euler.reset(), self.mpjpe.reset()
         self.last_results = {"euler": euler.cpu(), "mpjpe": mpjpe.cpu()}
         if self.trainer.sanity_checking:
             return
@@ -428,12 +395,14 @@ class MotionPredictor(L.LightningModule):
         # Lightning from warning once per key.
         self.log_dict(logs, sync_dist=True)
 
+    def on_test_epoch_end(self) -> None:
+        self.on_validation_epoch_end("test")
+
     # ---------------------------------------------------------------- checkpoints
     def _check_finite_weights(self) -> None:
-        """A step can turn the weights NaN after a finite loss; the loss check would fire only
-        at the next iteration, after validation and the epoch's checkpoint. Checked once per
-        epoch, before validation and before every checkpoint is written, so the previous good
-        last.ckpt is kept."""
+        """A step can turn the weights NaN after a finite loss, which the loss check sees only
+        at the next iteration: checked before each validation and checkpoint write, so the
+        previous good last.ckpt is kept."""
         nets = [self.net] if self.discriminator is None else [self.net, self.discriminator]
         bad = [n for net in nets for n, p in net.named_parameters() if not p.isfinite().all()]
         if bad:
@@ -455,15 +424,8 @@ class MotionPredictor(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         self._check_finite_weights()
-        checkpoint["motion"] = {
-            **self.run_info,
-            "dataset": self.dataset,
-            "actions": self.actions,
-            "pose_dim": self.normalizer.pose_dim,
-            "num_features": self.normalizer.num_features,
-            "architecture": type(self.net).__name__,
-            "adversarial": self.adversarial,
-        }
+        # What rebuilds the model without its data (factory.load_trained): config, actions.
+        checkpoint["motion"] = {**self.run_info, "actions": self.actions}
         # The random state (dropout masks) so that a resumed run continues as it would have:
         # CPU generator always, every CUDA device's generator when CUDA is in use.
         checkpoint["rng"] = {"torch": torch.get_rng_state()}
@@ -471,17 +433,17 @@ class MotionPredictor(L.LightningModule):
             checkpoint["rng"]["cuda"] = torch.cuda.get_rng_state_all()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
-        rng = checkpoint.get("rng")
-        if rng is None:
-            return
-        torch.set_rng_state(rng["torch"])
+        rng = checkpoint.get("rng", {})
+        if "torch" in rng:
+            torch.set_rng_state(rng["torch"])
         cuda = rng.get("cuda")
         if cuda is not None and torch.cuda.is_available():
-            if len(cuda) != torch.cuda.device_count():
+            count = torch.cuda.device_count()
+            if len(cuda) != count:
                 rank_zero_warn(
                     f"the checkpoint holds the random state of {len(cuda)} CUDA devices, this "
-                    f"machine has {torch.cuda.device_count()}: dropout masks after the resume "
-                    "differ from an uninterrupted run"
+                    f"machine has {count}: dropout masks after the resume differ from an "
+                    "uninterrupted run"
                 )
-            for i, state in enumerate(cuda[: torch.cuda.device_count()]):
+            for i, state in enumerate(cuda[:count]):
                 torch.cuda.set_rng_state(state, i)

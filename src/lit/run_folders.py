@@ -136,10 +136,15 @@ def training_run_name(ckpt_path: str | Path) -> str:
     return run.parent.name if stamp.isdigit() else run.name
 
 
-def evaluated_name(ckpt_path: str | None, model: str | None, data: str | None) -> str:
+def evaluated_name(
+    ckpt_path: str | None, model: str | None, data: str | None, predictions: str | None = None
+) -> str:
     """The run_name of an evaluation or visualisation (the `evaluated` resolver of
     conf/eval.yaml): the training run and checkpoint it evaluates, e.g. li2018_h36m_last, so
-    that the folders of different models tell apart; <model>_<data> for a baseline."""
+    that the folders of different models tell apart; <model>_<data> for a baseline,
+    predictions_<file stem>_<data> for a file of predictions."""
     if ckpt_path:
         return f"{training_run_name(ckpt_path)}_{Path(str(ckpt_path)).stem}"
+    if predictions:
+        return f"predictions_{Path(str(predictions)).stem}_{data or 'data'}"
     return f"{model or 'checkpoint'}_{data or 'data'}"
