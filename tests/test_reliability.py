@@ -17,7 +17,7 @@ from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
-from src.lit.validation import validate_train_config
+from src.lit.resume import prepare_training
 from tests.conftest import compose_config, run_module
 from tests.test_resume import TINY
 
@@ -347,7 +347,7 @@ def test_same_command_twice_gives_two_run_folders(tmp_path, synthetic_data_dir):
 def test_more_out_of_range_values_are_rejected(overrides, message, tmp_path, synthetic_data_dir):
     cfg = compose_config("train", ["data=synthetic", *overrides], tmp_path, synthetic_data_dir)
     with pytest.raises(ConfigError, match=message):
-        validate_train_config(cfg)
+        prepare_training(cfg, [], {})
 
 
 def test_misspelt_action_lists_the_valid_ones_before_training(h36m_dir, tmp_path):

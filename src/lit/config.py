@@ -12,6 +12,7 @@ import difflib
 import functools
 import inspect
 import types
+import typing
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Union
@@ -146,12 +147,15 @@ BOOLEAN_WORDS = {"yes", "no", "y", "n", "on", "off"}
 
 
 class _Builds(BuildsFn):
-    """hydra-zen's `builds`, reading `int | None` as it reads Optional[int]."""
+    """hydra-zen's `builds`, reading `int | None` as it reads Optional[int], and a union without
+    the alternatives a config cannot hold (`float | Tensor` is a float)."""
 
     @classmethod
     def _sanitized_type(cls, type_, **kwargs):
-        if isinstance(type_, types.UnionType):
-            type_ = Union[type_.__args__]  # noqa: UP007 (the typing form hydra-zen knows)
+        if typing.get_origin(type_) in (Union, types.UnionType):
+            plain = (int, float, bool, str, list, dict, tuple, type(None))
+            args = [a for a in typing.get_args(type_) if not isinstance(a, type) or a in plain]
+            type_ = Union[tuple(args)] if args else Any  # noqa: UP007 (hydra-zen's form)
         return super()._sanitized_type(type_, **kwargs)
 
 
@@ -174,9 +178,15 @@ def constructor_schema(target: str, partial: bool = False) -> type:
 
 # ------------------------------------------------------------------------------ the checks
 def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
+    """check_types, then the combinations that cannot work. `resuming`: a resume, which keeps
+    its run's val_every."""
+    check_types(cfg, entry)
+    _check_combinations(cfg, entry, resuming)
+
+
+def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
-    nothing reads; then the combinations that cannot work. `entry`: train, eval, visualize,
-    export_windows; `resuming`: a resume, which keeps its run's val_every."""
+    nothing reads. `entry`: train, eval, visualize, export_windows."""
     plain, raw = _resolved(cfg), OmegaConf.to_container(cfg, resolve=False)
     _check_node(plain, SCHEMAS[entry], "")
     # The values the user wrote first, copies (${model.net.kernel}) after: a wrong value is
@@ -192,7 +202,6 @@ def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
             skip = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
             skip |= set() if copies else {k for k, v in written.items() if "${" in str(v)}
             _check_node({k: v for k, v in node.items() if k not in skip}, schema, path)
-    _check_combinations(cfg, entry, resuming)
 
 
 def _check_node(plain: dict, schema: type, path: str) -> None:
@@ -225,7 +234,9 @@ def _reworded(err: OmegaConfBaseException, path: str) -> str:
         )
     if err.child_node is not None:
         return f"{key}={err.value!r} must be {_words(err.child_node)}."
-    return f"{key}={err.value!r}: {err.msg.splitlines()[0]}."
+    kind = err.msg.splitlines()[0].split()[-1]  # "... converted to Integer": a list item
+    words = {"Integer": "a whole number", "Float": "a number", "Boolean": "true or false"}
+    return f"{key}={err.value!r} must be {words.get(kind, 'of another type')}."
 
 
 def _words(node: Any) -> str:
