@@ -140,4 +140,3 @@ def _load_npy(path: Path, frames: int, n_columns: int) -> np.ndarray | None:
     if arr.dtype != np.float32 or arr.shape != (frames, n_columns):
         return None
     return arr
-
