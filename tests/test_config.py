@@ -1,6 +1,9 @@
 """Every config composes and instantiates; typos get Hydra's clear errors."""
 
+import typing
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Literal, Optional
 
 import hydra
 import pytest
@@ -175,3 +178,60 @@ def test_cli_value_of_the_wrong_type_is_one_line(tmp_path, synthetic_data_dir):
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "iterations='abc' must be a whole number" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+class EveryAnnotation:
+    """A constructor with every annotation a new model may carry (docs/extending.md)."""
+
+    def __init__(  # noqa: PLR0913
+        self,
+        a: tuple = (2, 7),
+        b: typing.Tuple = (1,),  # noqa: UP006
+        c: list = (1,),
+        d: typing.List = (1,),  # noqa: UP006
+        e: Sequence[int] = (1,),
+        f: typing.Sequence = (1,),  # noqa: UP006
+        g: tuple[int, int] = (2, 7),
+        h: typing.Tuple[float, ...] = (0.5,),  # noqa: UP006
+        i: int | None = None,
+        j: Optional[float] = None,  # noqa: UP045
+        k: Literal["x", "y"] = "x",
+        m: list[float] = (1.0,),
+    ):
+        pass
+
+
+@pytest.mark.parametrize(
+    ("values", "refusal"),
+    [
+        ({"a": [2, 7], "b": [1, 2, 3], "c": [1], "d": [1, "x"], "e": [1, 2], "f": ["x"],
+          "g": [3, 3], "h": [0.1, 2], "i": None, "j": 1, "k": "y", "m": [1, 2.5]}, None),
+        ({"i": 3}, None),
+        ({"g": [2, "x"]}, "model.net.g[1]='x' must be a whole number."),
+        ({"m": ["x"]}, "model.net.m[0]='x' must be a number."),
+        ({"i": "no"}, "model.net.i='no' must be a whole number or null."),
+        ({"j": "x"}, "model.net.j='x' must be a number or null."),
+        ({"a": 2}, "model.net.a=2 must be a list."),
+        ({"e": "no"}, "model.net.e='no' must be true or false."),  # untyped: a boolean word
+        ({"kernel": [2, 7]}, f"model.net.kernel is not an argument of {__name__}."
+                             "EveryAnnotation, so it cannot be added."),
+    ],
+)  # fmt: skip
+def test_every_annotation_a_constructor_can_carry_is_read(values, refusal, tmp_path):
+    """`conforms([2, 7], tuple)` used to be False (a model with `kernel: tuple = (2, 7)` was
+    refused) and typing.List or Sequence raised IndexError. Each annotation is read by
+    hydra-zen and checked by OmegaConf where it has a type OmegaConf holds (a Literal, a
+    Sequence and a union are the constructor's to check)."""
+    from omegaconf import open_dict
+
+    from src.lit.config import ConfigError, check_types
+
+    cfg = compose_config("train", [], tmp_path)
+    with open_dict(cfg):
+        cfg.model.net = {"_target_": f"{__name__}.EveryAnnotation", **values}
+    if refusal is None:
+        check_types(cfg, "train")
+    else:
+        with pytest.raises(ConfigError) as err:
+            check_types(cfg, "train")
+        assert str(err.value) == refusal

@@ -143,7 +143,7 @@ SCHEDULE_OWNS = {"max_steps": -1, "max_epochs": None, "min_steps": None, "min_ep
                  "val_check_interval": None, "check_val_every_n_epoch": 1,
                  "limit_train_batches": None}  # fmt: skip
 # Words YAML 1.1 reads as booleans; Hydra reads them as strings, which Python takes as true.
-BOOLEAN_WORDS = {"yes", "no", "y", "n", "on", "off"}
+BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 class _Builds(BuildsFn):
