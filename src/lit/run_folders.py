@@ -28,6 +28,7 @@ from src.lit.checkpoints import CheckpointError
 from src.lit.config import ConfigError
 from src.lit.factory import PROJECT_ROOT
 from src.lit.predictor import NonFiniteLossError
+from src.lit.resume import prepare_training
 
 # The project's errors for a user's mistake (bad data, config, checkpoint, a diverged run): a
 # refused run leaves nothing behind, and the command line prints them as one line.
@@ -180,8 +181,6 @@ class PrepareRun(Callback):
 
     @staticmethod
     def _prepare_training(config: DictConfig) -> None:
-        from src.lit.resume import prepare_training
-
         task = copy.deepcopy(config)
         with read_write(task), open_dict(task):
             del task["hydra"]
