@@ -208,6 +208,7 @@ class EveryAnnotation:
           "g": [3, 3], "h": [0.1, 2], "i": None, "j": 1, "k": "y", "m": [1, 2.5]}, None),
         ({"i": 3}, None),
         ({"g": [2, "x"]}, "model.net.g[1]='x' must be a whole number."),
+        ({"g": [2]}, "model.net.g=[2] must be a list of 2 values."),
         ({"m": ["x"]}, "model.net.m[0]='x' must be a number."),
         ({"i": "no"}, "model.net.i='no' must be a whole number or null."),
         ({"j": "x"}, "model.net.j='x' must be a number or null."),

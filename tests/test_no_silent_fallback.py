@@ -199,6 +199,7 @@ def test_every_boolean_key_set_to_no_is_refused_or_false_never_true(
         # a boolean word where the type is a union (true, false or "warn")
         (["trainer.deterministic=off"], "trainer.deterministic='off' must be true or false."),
         (["model.net.kernel=[2,x]"], "model.net.kernel[1]='x' must be a whole number."),
+        (["model.net.kernel=[2]"], "model.net.kernel=[2] must be a list of 2 values."),
         (["model.net.dropout=0.5"], "model.net.dropout=0.5 must be a list."),
         (["model.lr_decay_every=1e4"], "model.lr_decay_every=10000.0 must be a whole number."),
         (["adversarial.enabled=1"], "adversarial.enabled=1 must be true or false."),

@@ -262,6 +262,10 @@ def _check_as_written(plain: Any, typed: Any, path: str) -> None:
             if not (isinstance(value, dict) and "_target_" in value):  # checked on its own
                 _check_as_written(value, typed._get_node(key), _join(path, key))
     elif isinstance(plain, list) and isinstance(typed, ListConfig):
+        ref = typed._metadata.ref_type  # tuple[int, int] is a list to OmegaConf: its length
+        size = typing.get_args(ref) if typing.get_origin(ref) is tuple else (...,)
+        if ... not in size and len(size) != len(plain):
+            raise ConfigError(f"{path}={plain} must be a list of {len(size)} values.")
         for i, value in enumerate(plain):
             _check_as_written(value, typed._get_node(i), f"{path}[{i}]")
     elif plain is not None and not _as_written(plain, typed):
