@@ -30,3 +30,33 @@ def test_no_data_or_artefacts_are_tracked():
         and not f.endswith(".gitkeep")
     ]
     assert not bad, bad
+
+
+# ------------------------------------------------------------------------ pages for readers
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def test_the_readme_is_short_and_opens_with_the_results():
+    lines = (ROOT / "README.md").read_text().splitlines()
+    assert len(lines) <= 250, f"README.md has {len(lines)} lines; keep it to 250"
+    headline = lines.index("<!-- results:start -->")
+    assert headline < 60, f"the results headline starts at line {headline + 1}, not in 60"
+    assert len((ROOT / "docs" / "results.md").read_text().splitlines()) <= 400
+
+
+def test_the_quick_start_says_how_long_the_main_job_takes_and_how_to_share_cores():
+    text = (ROOT / "README.md").read_text()
+    quick = text[text.index("## Quick start") : text.index("## Data")]
+    main_job = quick.index("src.train experiment=li2018_h36m")
+    assert re.search(r"\d+(\.\d+)? hours", quick[:main_job]), "state the time before the command"
+    assert "OMP_NUM_THREADS=1" in quick[:main_job]
+
+
+def test_pages_cite_no_issue_numbers_and_every_link_resolves():
+    """Readers cannot open the project's tracker; a page's relative links point at files."""
+    for page in DOCS:
+        text = page.read_text()
+        assert not re.search(r"\bissues? #?\d+", text, flags=re.I), page.name
+        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text):
+            if not re.match(r"https?://", target):
+                assert (page.parent / target).exists(), f"{page.name} links to {target}"
