@@ -20,8 +20,9 @@ import lightning as L
 import torch
 from omegaconf import DictConfig
 
+from src.data.errors import DataError  # noqa: F401  (what objects.validate may raise)
 from src.lit.compose import compose_config
-from src.lit.config import check_types
+from src.lit.config import check
 from src.lit.factory import (  # noqa: F401  (ConfigError: what a refused config raises)
     ConfigError,
     build_datamodule,
@@ -49,11 +50,10 @@ def compose(overrides: list[str], out_dir: Path, data_dir: Path, name: str = "tr
 
 
 def validate(cfg: DictConfig) -> None:
-    """The range and type checks `src.train` runs on a config before anything else (ConfigError
-    if refused): the declared types and ranges, then the constructors that check their own
-    arguments. (The cross-field checks, such as iterations a multiple of val_every, are
-    tests/test_runs.py's.)"""
-    check_types(cfg, "train")
+    """The checks `src.train` runs on a config before anything else (ConfigError, or the
+    DataError of the data module's own check, if refused): the declared types and ranges, the
+    cross-field checks, then the constructors that check their own arguments."""
+    check(cfg, "train")
     build_parts(cfg)
 
 

@@ -139,7 +139,9 @@ CONFIG_RANGES = [
 def configs(tmp_path_factory, synthetic_data_dir):
     """The configs the ranges are checked on, and a synthetic datamodule to build on."""
     out = tmp_path_factory.mktemp("ranges")
+    # val_every=1: every edge of `iterations` is then a whole number of validation periods.
     tiny = ["data=synthetic", "data.future_len=5", "model.net.nf=2", "model.net.d_z=8"]
+    tiny.append("val_every=1")
     conv = objects.compose([*tiny, "adversarial=li2018"], out / "a", synthetic_data_dir)
     bases = {"conv": conv}
     for option in ("linear", "inverse_sigmoid"):
@@ -171,7 +173,8 @@ def test_each_config_range_check_accepts_its_edge_and_refuses_just_beyond(
             objects.module(cfg, dm)
     for value in outside:
         cfg = with_value(bases[base], key, value)
-        with pytest.raises(objects.ConfigError, match=key.replace(".", r"\.")):
+        refused = (objects.ConfigError, objects.DataError)
+        with pytest.raises(refused, match=key.replace(".", r"\.")):
             objects.validate(cfg)
 
 

@@ -349,6 +349,11 @@ def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
                 "those instead."
             )
     check_schedule(cfg, resuming)
+    for key in ("model.optimizer.lr", "adversarial.optimizer.lr"):
+        # torch accepts lr=0, which trains nothing and says nothing.
+        lr = OmegaConf.select(cfg, key, default=None)
+        if lr is not None and not lr > 0:
+            raise ConfigError(f"{key}={lr} must be > 0 (with 0 nothing is trained).")
     C = OmegaConf.select(cfg, "model.net.C", default=None)
     if C is not None and not 1 <= C <= cfg.data.observed_len:
         raise ConfigError(
