@@ -3,12 +3,11 @@
     python -m src.report runs=[outputs/reproduce/multiruns/<time>] budget="..."
     python -m src.report runs=[<new runs>] records=docs/runs out=docs/results.md readme=README.md
 
-Runs are found and recorded in src/reporting/runs.py, evaluated here as src.eval does (best and
-last checkpoints, each protocol) with the baselines, grouped by experiment, dataset and budget in
-groups.py and collected into one long DataFrame in frame.py, which decides the verdicts;
-headline.py, claims.py and page.py lay out the page. Every number comes from those evaluations
-and the published tables; nothing is typed in. With records=DIR each run evaluated is also
-recorded there, and the runs recorded there join the page without their folders.
+Runs are found and recorded by src/reporting/runs.py and evaluated here as src.eval does (best
+and last checkpoints, each protocol), beside the baselines; src/reporting/ groups them, puts
+every evaluation into one long DataFrame and lays out the page from it. Every number comes from
+those evaluations and the published tables. With records=DIR each run evaluated is recorded
+there, and the runs recorded there join the page without their folders.
 """
 
 from __future__ import annotations
@@ -29,8 +28,7 @@ from src.lit.compose import compose_config
 from src.lit.factory import ConfigError, git_commit, register_resolvers
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
-from src.reporting.headline import figures, readme_block
-from src.reporting.page import build_page, per_action_csv, replace_block
+from src.reporting.page import replace_block, write_page
 from src.reporting.runs import gather_runs, mark_archives, scored_entries, write_record
 from src.results import evaluate as run_eval
 
@@ -39,8 +37,8 @@ BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 
 def evaluate(overrides: list[str], out_dir: Path) -> dict:
-    """One src.eval evaluation (its results.json as a dict), written into out_dir; the tables
-    it prints go to a file beside its results instead of the console."""
+    """One src.eval evaluation (its results.json as a dict) into out_dir, its printed tables
+    into a file there instead of the console."""
     cfg = compose_config("eval", overrides, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
@@ -124,38 +122,17 @@ def main(cfg: DictConfig) -> int:
     for run in fresh if records else ():
         path = write_record(run, records, commit, dt.date.today().isoformat())
         print(f"recorded {run['path']} as {path}")
-
     results = Results(groups, baselines)
     out = Path(cfg.out or work / "results.md").resolve()
-    tables = out.with_suffix("")  # docs/results.md: docs/results/<metric>_<protocol>.csv
-    tables.mkdir(parents=True, exist_ok=True)
-    for metric in ("euler", "mpjpe"):
-        for protocol in protocols:
-            csv = per_action_csv(results, protocol, metric)
-            (tables / f"{metric}_{protocol}.csv").write_text(csv)
-    names = []
-    for figure, kind in zip(figures(results, protocols[0]), ("errors", "validation"), strict=True):
-        names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
-        if figure is not None:
-            figure.savefig(out.with_name(names[-1]))
-    page = build_page(
-        results, protocols, command, cfg.budget, commit, targets, notes, names, tables.name
-    )
     replaced = out.exists()
-    out.write_text(page)
-    if readme:
-        here = readme.resolve().parent
-        figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
-        page = os.path.relpath(out, here)
-        block = readme_block(results, protocols[0], commit, targets, figure, page)
-        replace_block(readme, "results", block)
+    write_page(results, out, protocols, command, cfg.budget, commit, targets, notes, readme)
     raw = [{"label": g.label, "dataset": g.dataset, "runs": g.runs} for g in groups]
     raw = {"groups": raw, "baselines": baselines}
     (work / "report.json").write_text(json.dumps(raw, indent=1, default=str))
     results.frame.to_csv(work / "results_long.csv", index=False)
     print(
         f"wrote {out}{' (replacing the file that was there)' if replaced else ''}, its figures "
-        f"and {tables.name}/*.csv; evaluations and the long table in {work}"
+        f"and {out.stem}/*.csv; evaluations and the long table in {work}"
     )
     return 0
 
