@@ -1,22 +1,20 @@
 """Every evaluation as one long table, and what the results page concludes from it.
 
-`Results.frame` has one row per run, protocol, checkpoint, metric, action and horizon: g (the
-row's group in `Results.entries`: the trained groups, then the baselines), experiment, dataset,
-iterations, seed, run, protocol, checkpoint ("best", "last"; "-" for a baseline), metric,
-action, horizon, value (NaN where absent), absent (the reason) and trained (False for an
-evaluated action this data copy has no training file of). Every table of the page groups it:
-a seed's average over the actions, then mean ± std (n - 1) over the seeds.
+`Results.frame` has a row per run, protocol, checkpoint ("-" for a baseline), metric, action
+and horizon; g is the row's group in `Results.entries` (the trained groups, then the
+baselines), value is NaN where the action is absent (`absent` says why), and trained is False
+for an action this data copy has no training file of. A cell of the page is the mean ± std
+(n - 1) over the seeds of each seed's average over the actions.
 
 A group is judged against one published reference: the model's own paper, unless its same-set
 average includes a known slip of the paper and another reference's does not. The judged average
-leaves out the actions without training files (CMU washwindow); the average over all evaluated
-actions stands beside it.
+leaves out the actions without training files (CMU washwindow).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import pandas as pd
 
@@ -36,10 +34,9 @@ COLUMNS += ["metric", "action", "horizon", "value", "absent", "trained"]
 KEYS = ["g", "protocol", "checkpoint", "metric"]
 
 
-@dataclass(frozen=True)
-class Reference:
-    """A published source: key "<paper> <method>", values {action: {ms: value}} (with the
-    paper's own "average" row where printed), and what it is where its name does not say."""
+class Reference(NamedTuple):
+    """A published source: key "<paper> <method>", {action: {ms: value}} (with the paper's own
+    "average" where printed), and what it is where its name does not say."""
 
     key: str
     published: dict
@@ -51,15 +48,14 @@ class Reference:
         return f"{PAPERS.get(paper, paper)} {method}"
 
 
-@dataclass
-class Judgement:
-    """status: "reproduces", "misses", "not judged" (the paper prints an average only) or "-"
-    (no published values or no target); missed: the horizons beyond the target per checkpoint."""
+class Judgement(NamedTuple):
+    """ "reproduces", "misses", "not judged" (an average only is published) or "-" (nothing
+    published, or no target); the reference, why that one; the horizons missed per checkpoint."""
 
     status: str
     reference: Reference | None = None
     why: str | None = None
-    missed: dict[str, list[int]] | None = None
+    missed: dict | None = None
 
 
 def printed_gap(ours: float, published: float) -> float:
@@ -81,22 +77,18 @@ def stat(mean: float, std: float, n: int, decimals: int = 2) -> str:
 
 
 def training_files(group: Group, actions: list[str]) -> dict[str, tuple[int, int]]:
-    """{action: (present, expected)} training files of the group's data copy; {} for data
-    without a file list (synthetic)."""
+    """{action: (present, expected)} training files of the group's data copy (none: synthetic)."""
     from src.data.layout import H36M_TRAIN_SUBJECTS, cmu_files, h36m_files
 
     data = group.runs[0]["config"].get("data", {})
     if data.get("name") == "h36m":
         entries = h36m_files(data.get("train_subjects", H36M_TRAIN_SUBJECTS), actions, "train")
-    elif data.get("name") == "cmu":
-        entries = cmu_files(actions, "train")
     else:
-        return {}
+        entries = cmu_files(actions, "train") if data.get("name") == "cmu" else []
     keys = ("missing_files", "train_missing_files")
     missing = {m for r in group.runs for k in keys for m in r.get(k) or []}
-    files = [(e.action, e.relpath not in missing) for e in entries]
-    files = pd.DataFrame(files, columns=["action", "present"]).groupby("action", sort=False)
-    return {a: (int(p.sum()), len(p)) for a, p in files.present}
+    files = pd.DataFrame([(e.action, e.relpath not in missing) for e in entries], columns=[0, 1])
+    return {a: (int(p.sum()), len(p)) for a, p in files.groupby(0, sort=False)[1]}
 
 
 class Results:
@@ -104,13 +96,10 @@ class Results:
 
     def __init__(self, groups: list[Group], baselines: list[dict] = ()):
         self.groups = list(groups)
-        # A baseline or a scored model: a group of one run without checkpoints.
-        runs = [
-            b | {"seed": 0, "path": b["label"], "results": {"-": b["results"]}} for b in baselines
-        ]
-        self.baselines = [
-            Group(r["label"], r["label"], r["dataset"], 0, [r], kind=r.get("kind", "baseline"))
-            for r in runs
+        self.baselines = [  # a baseline or a scored model: one run without checkpoints
+            Group(b["label"], b["label"], b["dataset"], 0, [r], kind=b.get("kind", "baseline"))
+            for b in baselines
+            for r in [b | {"seed": 0, "path": b["label"], "results": {"-": b["results"]}}]
         ]
         self.entries = [*self.groups, *self.baselines]
         self._g = {e: k for k, e in enumerate(self.entries)}
@@ -129,7 +118,7 @@ class Results:
             )
         euler = values[values.metric == "euler"]
         self.evaluated = {g: list(dict.fromkeys(f.action)) for g, f in euler.groupby("g")}
-        self._seeds = {  # judged -> each seed's average over the actions
+        self._seeds = {  # judged -> each seed's average over the (judged) actions
             judged: values[values.trained | (not judged)]
             .groupby([*KEYS, "seed", "horizon"])
             .value.mean()
@@ -158,18 +147,19 @@ class Results:
         gone = self.untrained.get(group.dataset, set()) if judged else set()
         return [a for a in self.evaluated.get(self._g[group], []) if a not in gone]
 
-    def _seed_means(self, group, protocol, checkpoint, metric="euler", judged=False):
+    def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
+        """The seeds' averages grouped by horizon; None where there are none."""
         try:
-            return self._seeds[judged].loc[(self._g[group], protocol, checkpoint, metric)]
+            seeds = self._seeds[judged].loc[(self._g[group], protocol, checkpoint, metric)]
         except KeyError:
             return None
+        return seeds.groupby(level="horizon")
 
     def average(self, group, protocol, checkpoint, metric="euler", judged=False) -> dict:
         """{ms: (mean, std, n)} over the seeds of their averages over the evaluated actions
         (judged: those with training files); {} where there is none."""
-        seeds = self._seed_means(group, protocol, checkpoint, metric, judged)
-        by_ms = () if seeds is None else seeds.groupby(level="horizon")
-        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms}
+        by_ms = self._by_horizon(group, protocol, checkpoint, metric, judged)
+        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms or ()}
 
     def means(self, group, protocol, checkpoint, judged=False) -> dict[int, float]:
         average = self.average(group, protocol, checkpoint, judged=judged)
@@ -177,17 +167,16 @@ class Results:
 
     def spread(self, group, protocol, checkpoint, judged=False) -> dict[int, float] | None:
         """The largest minus the smallest of the seeds' Euler averages; None for one seed."""
-        seeds = self._seed_means(group, protocol, checkpoint, judged=judged)
-        by_ms = None if seeds is None else seeds.groupby(level="horizon")
+        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
         if by_ms is None or by_ms.size().max() < 2:
             return None
         return (by_ms.max() - by_ms.min()).to_dict()
 
     def _references(self, group: Group) -> list[Reference]:
         ref = REFERENCES["experiment_published"].get(group.run_name, "-")
-        if ref == "-":
-            label = _euler(group).get("published_label") or " "
-            ref = dict(zip(("paper", "method"), label.split(" ", 1), strict=True))
+        if ref == "-":  # the one its evaluation printed beside ours
+            paper, _, method = (_euler(group).get("published_label") or "").partition(" ")
+            ref = {"paper": paper, "method": method}
         published, key = published_for(ref, group.dataset)
         refs = [Reference(key, published)] if published else []
         for also in REFERENCES["also_published"].get(f"{key} {group.dataset}", []):
@@ -196,9 +185,9 @@ class Results:
         return refs
 
     def references(self, group: Group) -> list[Reference]:
-        """The group's published references, the model's own paper first: references.json's
-        entry for Li et al.'s ablations, else the one its evaluation printed beside ours, then
-        other papers' numbers of the same model; on the dataset they were published for."""
+        """The group's published references on its dataset, the model's own paper first: for Li
+        et al.'s ablations references.json's, else the one its evaluation printed beside ours;
+        then other papers' numbers of the same model."""
         return self._refs[group]
 
     def same_set(self, group: Group, reference: Reference) -> dict[int, float]:
@@ -220,7 +209,7 @@ class Results:
         }
 
     def reference(self, group: Group) -> tuple[Reference | None, str]:
-        """The reference a group is judged against and why (see the module's docstring)."""
+        """The reference a group is judged against, and why that one."""
         refs, actions = self.references(group), self.actions(group)
         if not (usable := [r for r in refs if self.same_set(group, r)]):
             return None, "its paper prints an average only"
@@ -231,8 +220,7 @@ class Results:
         return usable[0], "the only published source" if len(refs) == 1 else "the model's own paper"
 
     def judge(self, group: Group, protocol: str, target: float | None) -> Judgement:
-        refs = self.references(group)
-        if not refs or target is None:
+        if not (refs := self.references(group)) or target is None:
             return Judgement("-")
         chosen, why = self.reference(group)
         if chosen is None:
@@ -255,7 +243,7 @@ class Results:
         return out
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
-        """Where a judged row misses: the actions that carry the largest gap, the seed spread
+        """Where a judged row misses most: the actions that carry the gap, the seed spread
         against it, and what was compared with the reference code."""
         ref, actions = judgement.reference, self.actions(group)
         same = self.same_set(group, ref)
@@ -269,13 +257,11 @@ class Results:
         f = f[(f.g == self._g[group]) & (f.protocol == protocol) & (f.metric == "euler")]
         cells = f[(f.checkpoint == selection) & (f.horizon == ms)].groupby("action").value.mean()
         top = [(a, cells[a] - ref.published[a][ms]) for a in actions]
-        top = sorted(top, key=lambda kv: -abs(kv[1]))[:3]
+        top = ", ".join(f"{a} {signed(v)}" for a, v in sorted(top, key=lambda kv: -abs(kv[1]))[:3])
         text = (
             f"{group.label} ({group.iterations:,} iterations) misses most at {ms} ms ({selection} "
             f"checkpoint): {signed(gap)} against {ref.name}'s {same[ms]:.2f}, the mean of the "
-            f"{len(actions)} actions' gaps, the largest "
-            + ", ".join(f"{a} {signed(v)}" for a, v in top)
-            + "."
+            f"{len(actions)} actions' gaps, the largest {top}."
         )
         if (spread := self.spread(group, protocol, selection, judged=True)) is not None:
             size = "larger" if spread[ms] > abs(gap) else "smaller"

@@ -2,18 +2,12 @@
 and what the results page knows of each experiment's references.
 
 published_results.csv is a byte copy of the shared docs/published_results.csv: one value per
-row, `paper,table,dataset,method,action,ms,value`, as printed (slips included, N/A cells
-omitted); an "average" row is the paper's own, over that table's actions. Paper keys "li2018",
-"martinez2017"; method keys e.g. "conv_s2s" (Li's "Ours"), "rrnn" (Martinez's residual model
-retrained by Li), "zero_velocity", "residual_sup_ma".
-
-references.json: `slips`, the cells the shared docs/published_results.md calls slips of the
-papers ("<paper> <method>" -> {action: why}; kept as printed, flagged where they enter an
-average); `experiment_published`, the references of Li et al.'s ablations, whose model config
-names the full model's (Tables 5 and 6 print averages only; Figure 4 no numbers: null);
-`also_published`, other papers' numbers for the same model and data ("<paper> <method>
-<dataset>"); `reference_code_checked`, what was compared with an experiment's reference code
-(the shared docs/protocol.md), for the diagnosis of a row that misses.
+row, as printed (slips included, N/A cells omitted); an "average" row is the paper's own.
+references.json: the cells the shared docs/published_results.md calls slips of the papers (kept
+as printed, flagged where they enter an average), the references of Li et al.'s ablations
+(Tables 5 and 6 print averages only, Figure 4 no numbers: null), other papers' numbers of the
+same model ("<paper> <method> <dataset>"), what was checked against reference code (the
+shared docs/protocol.md), and the ablation claims (claims.py).
 """
 
 from __future__ import annotations

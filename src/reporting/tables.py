@@ -1,12 +1,10 @@
-"""An evaluation's result table in the papers' layout (rows: actions and their average, columns:
-horizons in ms), as src.eval writes it to results.{json,md,csv}, and the one markdown writer
-of every table the project prints.
+"""An evaluation's result table in the papers' layout (actions and their average by horizon),
+as src.eval writes it to results.{json,md,csv}, and the one markdown writer of every table.
 
-A table is the dict stored in results.json: `values` holds every evaluated action, `absent`
-every other one with the reason (e.g. S5 files missing from a partial data copy), printed as
-"absent", never as 0 or NaN. The average is over the evaluated actions only (protocol §4.1
-step 6); beside it stands the published average over the same actions (like for like when some
-are absent), and below it the paper's average as printed, over all of its own.
+`values` holds every evaluated action, `absent` every other with the reason (e.g. S5 files
+missing from a partial data copy), printed as "absent", never as 0 or NaN. The average is over
+the evaluated actions only (protocol §4.1 step 6); beside it the published average over the
+same actions (like for like), below it the paper's own, over all of its actions.
 """
 
 from __future__ import annotations
@@ -27,8 +25,7 @@ RIGHT = ("n", "iterations", "seed", "best at", "wall time")
 
 
 def markdown(rows, columns=None) -> str:
-    """Rows (or a frame) as a GitHub table: cells as written, no number parsing; the columns
-    in ms and the counts right-aligned."""
+    """A GitHub table, cells as written; the columns in ms and the counts right-aligned."""
     frame = pd.DataFrame(rows, columns=columns)
     align = ["right" if str(c).endswith(" ms") or c in RIGHT else "left" for c in frame.columns]
     return frame.to_markdown(index=False, disable_numparse=True, colalign=align)
@@ -39,9 +36,8 @@ def fmt(value: float | None, decimals: int = 2) -> str:
 
 
 def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
-    """Mean of the published {action: {ms: value}} over `actions` at each horizon where every
-    one has a value: the published average over the same actions as ours (a paper's own covers
-    all of its actions, and a data copy may lack some)."""
+    """The published {action: {ms: value}} averaged over our `actions` (a paper's own average
+    covers all of its actions), at each horizon where every one of them has a value."""
     out = {}
     for ms in horizons_ms if published and actions else ():
         cells = [published.get(a, {}).get(ms) for a in actions]
@@ -51,9 +47,8 @@ def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
 
 
 def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> dict:
-    """{action: {ms: value}} at the table horizons from a metric's compute() output (A, T),
-    `absent` actions left out. An action with NaN (no windows) not listed as absent raises, so
-    that none silently disappears from a table; so does a listed one that has values."""
+    """{action: {ms: value}} at the table horizons of a metric's output (A, T), less `absent`;
+    an action without windows (NaN) must be listed absent, so that none silently disappears."""
     absent = dict(absent or {})
     if values.dim() != 2 or values.shape[0] != len(actions):
         raise ReportingError(
@@ -81,8 +76,8 @@ def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> d
 def result_table(
     title, metric, unit, actions, horizons_ms, values, absent, published=None, published_label=None
 ) -> dict:
-    """The table as results.json holds it (horizons as text keys), after checking that every
-    action is either evaluated, with a finite value at each horizon, or absent with a reason."""
+    """The table as results.json holds it (horizons as text keys); every action either has a
+    finite value at each horizon or is absent with a reason."""
     horizons = [int(ms) for ms in horizons_ms]
     if not horizons:
         raise ReportingError(f"{title}: no horizons; the model predicts too few frames")
@@ -97,10 +92,12 @@ def result_table(
                 f"{title}: {action!r} has no finite value at every horizon; list it in absent "
                 "with a reason instead"
             )
-    evaluated = [a for a in actions if a in values]
-    average = {ms: sum(values[a][ms] for a in evaluated) / (len(evaluated) or 1) for ms in horizons}
+    evaluated, pub = [a for a in actions if a in values], published is not None
+    average = {
+        ms: sum(values[a][ms] for a in evaluated) / max(len(evaluated), 1) for ms in horizons
+    }
     text = lambda row: {str(ms): float(v) for ms, v in row.items()}  # noqa: E731
-    pub = published is not None
+    same = text(same_set_average(published, evaluated, horizons))
     return {
         "title": title,
         "metric": metric,
@@ -113,15 +110,13 @@ def result_table(
         "average": {"actions": evaluated, "values": text(average)} if evaluated else None,
         "published": {a: text(r) for a, r in published.items()} if pub else None,
         "published_label": published_label if pub else None,
-        "published_same_set": text(same_set_average(published, evaluated, horizons))
-        if pub
-        else None,
+        "published_same_set": same if pub else None,
     }
 
 
 def table_frame(table: dict) -> pd.DataFrame:
-    """The table long: action, ms, value ("absent" where absent), published, note; then the
-    average (published: the same-set average) and the paper's as printed."""
+    """The table long (action, ms, value, published, note), then the average (published: the
+    same-set one) and the paper's as printed."""
     published, horizons = table.get("published") or {}, list(map(str, table["horizons_ms"]))
     rows = [
         (a, ms, table["values"].get(a, {}).get(ms, "absent"), published.get(a, {}).get(ms))
@@ -144,8 +139,7 @@ def table_frame(table: dict) -> pd.DataFrame:
 
 
 def table_markdown(table: dict) -> str:
-    """The table as results.md shows it: ours (published) per cell, absent actions with a
-    numbered footnote for their reason, the average over the evaluated actions."""
+    """results.md's table: ours (published) per cell, absent actions with a footnote."""
     frame, decimals = table_frame(table), table.get("decimals", 2)
     has_published = table.get("published") is not None
     reasons = list(dict.fromkeys(table["absent"].values()))
@@ -185,13 +179,11 @@ def table_markdown(table: dict) -> str:
 
 
 def tables_csv(tables) -> str:
-    """The tables as one long CSV, one row per action and horizon, at full precision."""
     frame = pd.concat([table_frame(t) for t in tables])
     return frame[["metric", "action", "ms", "value", "published", "note"]].to_csv(index=False)
 
 
 def read_results(path) -> dict:
-    """The parsed results.json of one `python -m src.eval` run."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(
