@@ -1,11 +1,9 @@
-"""Error-versus-horizon plot of several evaluations (Li et al. 2018, Figure 4, on our runs).
+"""Error against horizon of several evaluations (Li et al. 2018, Figure 4, on our runs):
 
-    python -m src.plot_errors results=[runs/a/t/results.json,runs/b/t/results.json]
-    python -m src.plot_errors results=[...] metric=mpjpe action=walking out=walking_mpjpe.png
+    python -m src.plot_errors results=[a/results.json,b/results.json] action=walking
 
-One line per results.json of `python -m src.eval` (one dataset), for the average row or one
-action; `published=true` adds the paper's curve, dashed. The image goes into the command's own
-run folder unless `out=` names a new file: nothing is written over.
+A line per results.json of src.eval (one dataset), `published=true` adds the paper's, dashed.
+The image goes into the command's own run folder unless `out=` names a new file.
 """
 
 from __future__ import annotations
@@ -28,8 +26,7 @@ METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
 
 
 def curve(results: dict, metric: str, action: str, source: str) -> tuple[dict, dict | None, dict]:
-    """({ms: ours}, {ms: published} or None, the table) of one metric and action (or
-    "average")."""
+    """({ms: ours}, {ms: published} or None, the table) of one metric and action."""
     if not (tables := [t for t in results["tables"] if t["metric"] == metric]):
         found = [t["metric"] for t in results["tables"]]
         raise ConfigError(f"{source}: no {metric!r} table (has {found}); use metric=euler|mpjpe")
@@ -47,7 +44,6 @@ def curve(results: dict, metric: str, action: str, source: str) -> tuple[dict, d
 
 
 def plot_errors(paths, out, metric="euler", action="average", labels=None, published=False):
-    """Write the error-versus-horizon image of the results.json files `paths`; its path."""
     if metric not in METRICS:
         raise ConfigError(f"metric={metric!r}: choose one of {', '.join(METRICS)}")
     if not paths:
@@ -101,8 +97,8 @@ def plot_errors(paths, out, metric="euler", action="average", labels=None, publi
 
 
 def legend_labels(results: list[dict], paths: list) -> list[str]:
-    """One legend entry per results file: "<run name> (<dataset>)", followed, where two would
-    read the same, by what tells them apart (protocol, checkpoint, folder), else a number."""
+    """ "<run name> (<dataset>)" per file, and where two read the same, what tells them apart
+    (protocol, checkpoint, folder), else a number."""
     provs = [r.get("provenance", {}) for r in results]
     run = lambda p, path: p.get("run_name") or p.get("model") or Path(path).parent.name  # noqa: E731
     labels = [f"{run(p, x)} ({p.get('dataset') or '?'})" for p, x in zip(provs, paths, strict=True)]

@@ -1,9 +1,7 @@
-"""Pictures of motion (3D stick figures, frame strips, animations) of an evaluation window, for
-src.visualize and the TensorBoard frame-strip callback, and error curves.
-
-Poses are joint positions (J, 3) after `yz_swap` (z up); a motion is (T, J, 3), observed frames
-first, drawn grey, then the future in the row's colour. Figures are `matplotlib.figure.Figure`
-(no pyplot): they render with Agg, without a display; a notebook shows them with display(fig).
+"""Pictures of motion (stick figures, frame strips, animations) for src.visualize and the
+TensorBoard callback, and error curves. A pose is joint positions (J, 3) after `yz_swap` (z
+up), a motion (T, J, 3): observed frames first, drawn grey, then the future in the row's
+colour. Figures are `matplotlib.figure.Figure` (no pyplot): they render without a display.
 """
 
 from __future__ import annotations
@@ -46,8 +44,7 @@ class PoseRow(NamedTuple):
 
 
 def skeleton_bones(skeleton: Skeleton) -> list[tuple[int, int]]:
-    """(parent, child) pairs of the kinematic tree, without zero-length bones (a child with a
-    zero offset sits on its parent, e.g. the H3.6M hand and thumb sites)."""
+    """(parent, child) pairs, less zero-length bones (e.g. the H3.6M hand and thumb sites)."""
     offsets = skeleton.offsets.abs().sum(-1).tolist()
     return [(p, j) for j, p in enumerate(skeleton.parents) if j > 0 and offsets[j] > 0]
 
@@ -68,12 +65,10 @@ def window_rows(
     dm, module, index: int, baseline: bool = True, observed_shown: int = 25,
     name: str | None = None, dataset: str | None = None
 ) -> tuple[list[PoseRow], int, str]:  # fmt: skip
-    """(rows, n_observed, description) of evaluation window `index` for `frame_strip` and
-    `animate`: the prediction of `module` (a MotionPredictor, decoded fully autoregressively,
-    dropout off), the ground truth and (with `baseline`, unless the model is zero-velocity)
-    zero-velocity; each row the last `observed_shown` observed frames, then the future. The
-    description names `dataset` (default: the data's own, "synthetic" for synthetic data, whose
-    `dataset_name` reads H3.6M)."""
+    """(rows, n_observed, description) of evaluation window `index`: the prediction of `module`
+    (a MotionPredictor, dropout off), the ground truth and (with `baseline`) zero-velocity, each
+    the last `observed_shown` observed frames, then the future. The description names `dataset`
+    (default: the data's own; synthetic data's `dataset_name` reads H3.6M)."""
     item = dm.val_dataloader().dataset[index]
     was_training = module.training
     module.eval()
@@ -107,7 +102,6 @@ def window_rows(
 
 
 def _axes(fig, rows: int, cols: int, k: int, box, view):
-    """The k-th 3D panel: one box holding every pose, equal scale on all axes, no frame."""
     ax = fig.add_subplot(rows, cols, k, projection="3d")
     lo, hi = box
     ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
@@ -128,9 +122,8 @@ def _segments(pose: np.ndarray, bones) -> np.ndarray:
 
 
 def draw_skeleton(ax, pose, bones, colors=PALETTE["red"], sides=None, linewidth=2.0) -> list:
-    """Draw one pose (J, 3), a line per bone, in `colors` (a (right and spine, left) pair or
-    one colour; `sides`, one 0/1 per bone, says which). Returns the two Line3D objects (right,
-    left), which an animation moves with `set_data_3d`."""
+    """One pose (J, 3) in `colors` ((right and spine, left) or one; `sides`: 0/1 per bone); the
+    two Line3D objects (right, left), which an animation moves with `set_data_3d`."""
     pair = (colors, colors) if isinstance(colors, str) else colors
     sides = np.zeros(len(bones), dtype=int) if sides is None else np.asarray(sides)
     lines = []
@@ -143,9 +136,9 @@ def draw_skeleton(ax, pose, bones, colors=PALETTE["red"], sides=None, linewidth=
 
 
 def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3) -> list[int]:
-    """Frame indices of a frame strip: `n_before` observed frames ending at the last observed
-    one, then every `step`-th future frame counted back from the last, so both the first
-    predicted frame (when step divides the future length - 1) and the last one are shown."""
+    """`n_before` observed frames ending at the last observed one, then every `step`-th future
+    frame counted back from the last (so the first predicted frame shows when step divides the
+    future length - 1)."""
     if not 0 < n_observed < n_total or step < 1 or n_before < 0:
         raise ValueError(
             f"need 0 < n_observed < n_total, step >= 1, n_before >= 0: got "
@@ -157,8 +150,7 @@ def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3
 
 
 def _prepare(rows, skeleton: Skeleton, n_observed: int):
-    """(T, bones, sides, box) of rows to draw, after checking them; box: the (low, high)
-    corners of one box holding every pose, so that all panels share a scale."""
+    """(T, bones, sides, box) of checked rows; box holds every pose: all panels share a scale."""
     if not rows:
         raise ValueError("nothing to draw: rows is empty")
     T = rows[0].positions.shape[0]
@@ -182,9 +174,8 @@ def frame_strip(
     rows, skeleton: Skeleton, n_observed: int, frame_ms: float = 40, step: int = 3,
     n_before: int = 3, title: str | None = None, view=VIEW, cell: float = 1.15
 ) -> Figure:  # fmt: skip
-    """A grid of poses in the manner of Li et al. (2018) Figure 3: one row per motion (e.g.
-    prediction, ground truth underneath, zero-velocity), the last observed frames in grey then
-    future frames in colour; column titles give the time from the last observed frame."""
+    """A grid of poses as Li et al. (2018) Figure 3: a row per motion, the last observed frames
+    grey then future ones in colour, titled with the time from the last observed frame."""
     T, bones, sides, box = _prepare(rows, skeleton, n_observed)
     frames = strip_frames(n_observed, T, step, n_before)
     fig = Figure(figsize=(cell * len(frames) + 1.2, cell * 1.5 * len(rows) + 0.6), dpi=100)
@@ -208,9 +199,8 @@ def animate(
     rows, skeleton: Skeleton, n_observed: int, frame_ms: float = 40, title: str | None = None,
     view=VIEW, size: float = 3.0, dpi: int = 80
 ) -> FuncAnimation:  # fmt: skip
-    """The rows side by side as 3D stick figures, one animation frame per motion frame, grey
-    until the first future frame, then each row's colour. Save with `anim.save(path,
-    writer=PillowWriter(fps=1000 / frame_ms))`, or show with `HTML(anim.to_jshtml())`."""
+    """The rows side by side, a frame per motion frame, grey until the first future frame. Save
+    with `anim.save(path, writer=PillowWriter(fps=1000 / frame_ms))`."""
     T, bones, sides, box = _prepare(rows, skeleton, n_observed)
     fig = Figure(figsize=(size * len(rows), size + 0.7), dpi=dpi)
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.8, wspace=0)
@@ -238,8 +228,7 @@ def animate(
 
 
 class Curve(NamedTuple):
-    """One line of a panel: {x: y}, an optional ± band {x: std}, a colour index (lines of one
-    experiment share it; None: the next colour) and a matplotlib line style."""
+    """A line: {x: y}, a ± band {x: std}, a colour index (None: the next), a line style."""
 
     label: str
     values: dict
@@ -249,8 +238,7 @@ class Curve(NamedTuple):
 
 
 def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle error (rad)"):
-    """Error curves, one panel per (title, curves) side by side, as Li et al. (2018) Figure 4;
-    a curve with `std` gets a shaded ± band. The x values of the curves are the ticks."""
+    """A panel per (title, curves), side by side, as Li et al. (2018) Figure 4."""
     if not panels or not all(curves for _, curves in panels):
         raise ValueError("line_panels: a panel without curves")
     fig = Figure(figsize=(5.0 * len(panels) + 1.0, 4.0), dpi=100)
@@ -281,8 +269,7 @@ def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle er
 
 
 def error_vs_horizon(results, title=None, ylabel="Euler-angle error (rad)", dashed=()) -> Figure:
-    """One panel of error against horizon, a line per (label, {ms: value}); the labels in
-    `dashed` (published curves) dashed."""
+    """A panel, a line per (label, {ms: value}); the labels in `dashed` dashed."""
     if not results:
         raise ValueError("error_vs_horizon: no curves given")
     curves = [Curve(label, v, style="--" if label in dashed else "-") for label, v in results]

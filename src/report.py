@@ -1,13 +1,10 @@
-"""Write the results page from finished training runs and run records.
+"""The results page from finished training runs and run records (src/reporting/):
 
-    python -m src.report runs=[outputs/reproduce/multiruns/<time>] budget="..."
     python -m src.report runs=[<new runs>] records=docs/runs out=docs/results.md readme=README.md
 
-Runs are found and recorded by src/reporting/runs.py and evaluated here as src.eval does (best
-and last checkpoints, each protocol), beside the baselines; src/reporting/ groups them, puts
-every evaluation into one long DataFrame and lays out the page from it. Every number comes from
-those evaluations and the published tables. With records=DIR each run evaluated is recorded
-there, and the runs recorded there join the page without their folders.
+Each run's best and last checkpoints and the baselines are evaluated here as src.eval does, on
+each protocol; every number on the page comes from those evaluations, the records of runs
+evaluated before (records=DIR, where each run evaluated here is recorded) and the papers.
 """
 
 from __future__ import annotations
@@ -37,8 +34,7 @@ BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 
 def evaluate(overrides: list[str], out_dir: Path) -> dict:
-    """One src.eval evaluation (its results.json as a dict) into out_dir, its printed tables
-    into a file there instead of the console."""
+    """src.eval's results.json (as a dict) into out_dir, its printed tables into a file there."""
     cfg = compose_config("eval", overrides, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
@@ -46,7 +42,6 @@ def evaluate(overrides: list[str], out_dir: Path) -> dict:
 
 
 def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
-    """The run's best and last checkpoints on each protocol, into run["results"]."""
     checkpoints, iterations = run["checkpoints"], run["iterations_of"]
     name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
     same = checkpoints["last"] == checkpoints["best"]
@@ -69,7 +64,6 @@ def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> Non
 
 
 def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
-    """Each baseline on each dataset and protocol: [{label, dataset, commit, results}]."""
     baselines = []
     for dataset in datasets:
         for model in BASELINES:
@@ -79,7 +73,7 @@ def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) 
                 overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
                 result = evaluate(
                     [*overrides, "data.allow_partial=true"],
-                    work / "baselines" / f"{model}_{dataset}_{protocol}",
+                    work / "baselines" / "_".join((model, dataset, protocol)),
                 )
                 entry["results"][protocol] = result
                 entry["missing_files"] = result["provenance"]["missing_files"]
@@ -127,8 +121,8 @@ def main(cfg: DictConfig) -> int:
     replaced = out.exists()
     write_page(results, out, protocols, command, cfg.budget, commit, targets, notes, readme)
     raw = [{"label": g.label, "dataset": g.dataset, "runs": g.runs} for g in groups]
-    raw = {"groups": raw, "baselines": baselines}
-    (work / "report.json").write_text(json.dumps(raw, indent=1, default=str))
+    raw = json.dumps({"groups": raw, "baselines": baselines}, indent=1, default=str)
+    (work / "report.json").write_text(raw)
     results.frame.to_csv(work / "results_long.csv", index=False)
     print(
         f"wrote {out}{' (replacing the file that was there)' if replaced else ''}, its figures "

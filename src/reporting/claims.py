@@ -1,17 +1,11 @@
-"""Li et al.'s ablation claims beside what our runs show (a section of the results page).
-
-The paper's ablation study (section 4.3) makes claims from Table 5 (the long-term encoder),
-Table 6 (the 2x7 kernel) and Figure 4 (the short-term window C, the adversarial regulariser),
-listed in references.json. Each claim is a list of pairs of experiments, "changed minus base"
-(with the paper's printed averages of each, where it prints numbers), and an expected sign of
-that difference in average Euler error at the horizons it is about. The section prints our
-differences (mean over seeds of each side) on every protocol and checkpoint, and marks those
-within the seed spread of li2018_h36m (its largest minus its smallest seed average), which one
-seed per ablation cannot tell apart.
-
-li2018_h36m_C20 (C = 20 with the regulariser) is li2018_h36m's configuration under another
-run_name: where its config equals li2018_h36m's but for run_name, the C = 20 points are
-li2018_h36m's (several seeds), and its own run is checked against li2018_h36m's of its seed.
+"""Li et al.'s ablation claims (section 4.3; Tables 5 and 6, Figure 4; listed in references.json)
+beside what our runs show: each claim is pairs of experiments, "changed minus base", and the
+expected sign of that difference in average Euler error at its horizons. Our differences (mean
+over the seeds of each side), on every protocol and checkpoint, are marked where they are within
+the seed spread of li2018_h36m (largest minus smallest seed average): one seed per ablation
+cannot tell those apart. li2018_h36m_C20 is li2018_h36m's configuration under another run_name:
+where their configs differ only in run_name, the C = 20 points are li2018_h36m's (several
+seeds), and its own run is checked against li2018_h36m's of its seed.
 """
 
 from __future__ import annotations
@@ -27,23 +21,13 @@ SHORT_PROTOCOLS = {"srnn": "8 windows", "random": "256 windows"}
 
 
 def claims() -> list[SimpleNamespace]:
-    """The claims of references.json, each pair's paper difference {ms: changed - base} (or
-    None) and the text's numbers filled in from Tables 5 and 6."""
+    """The claims, each pair with the paper's {ms: changed - base} (or None), the text's
+    numbers filled in from Tables 5 and 6."""
     f = published_frame()
     f = f[(f.paper == "li2018") & f.table.isin([5, 6]) & (f.action == AVERAGE)]
-    printed = {
-        (t, m): dict(zip(map(int, r.ms), map(float, r.value), strict=True))
-        for (t, m), r in f.groupby(["table", "method"])
-    }
-    words = {
-        f"t{t}_{m}": " ".join(f"{v:.2f}" for _, v in sorted(r.items()))
-        for (t, m), r in printed.items()
-    }
-
-    def paper(table: int, changed: str, base: str) -> dict[int, float]:
-        a, b = printed[table, changed], printed[table, base]
-        return {ms: a[ms] - b[ms] for ms in a if ms in b}
-
+    printed = {k: r.set_index("ms").value.sort_index() for k, r in f.groupby(["table", "method"])}
+    words = {f"t{t}_{m}": " ".join(f"{v:.2f}" for v in r) for (t, m), r in printed.items()}
+    paper = lambda t, a, b: (printed[t, a] - printed[t, b]).dropna().to_dict()  # noqa: E731
     out = []
     for claim in REFERENCES["claims"]:
         pairs = [(a, b, ref and paper(*ref)) for a, b, ref in claim["pairs"]]
@@ -55,8 +39,7 @@ def claims() -> list[SimpleNamespace]:
 
 
 def _differences(a, b) -> list[str]:
-    """The settings two groups differ in (run_name aside): `key a vs b`, and the top-level
-    sections present in one only."""
+    """What two groups' configs differ in (run_name aside): `key a vs b`, sections in one only."""
     ia = {k: v for k, v in a.ident.items() if k != "run_name"}
     ib = {k: v for k, v in b.ident.items() if k != "run_name"}
     out = [f"{k} {ia[k]} vs {ib[k]}" for k in sorted(ia.keys() & ib.keys()) if ia[k] != ib[k]]
@@ -149,8 +132,8 @@ def _cell(delta: dict, spread: dict | None, ms: int) -> str:
 
 
 def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list, str | None]:
-    """The rows of one pair of a claim (the paper's, then ours on each protocol and checkpoint,
-    or "not trained") and the note naming the settings the two differ in."""
+    """The rows of one pair (the paper's, then ours on each protocol and checkpoint, or "not
+    trained") and the note naming the settings the two differ in."""
     changed_name, base_name, paper = pair
     name = lambda n: n if n == FULL else n.removeprefix("li2018_h36m_")  # noqa: E731
     label = f"{name(changed_name)} − {name(base_name)}"
@@ -183,8 +166,8 @@ def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list,
 
 
 def claims_section(results: Results, protocols: list[str], heading: str) -> list[str]:
-    """The section's lines under `## heading`; [] unless li2018_h36m and an ablation it can be
-    compared with were trained. A claim none of whose pairs was trained is left out."""
+    """The section; [] unless li2018_h36m and an ablation to compare it with were trained. A
+    claim none of whose pairs was trained is left out."""
     ablations = [g for g in results.groups if g.ablation and g.dataset == "h36m"]
     full = _nearest(results.groups, FULL, ablations[0] if ablations else None)
     if full is None or not ablations:

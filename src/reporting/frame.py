@@ -77,7 +77,7 @@ def stat(mean: float, std: float, n: int, decimals: int = 2) -> str:
 
 
 def training_files(group: Group, actions: list[str]) -> dict[str, tuple[int, int]]:
-    """{action: (present, expected)} training files of the group's data copy (none: synthetic)."""
+    """{action: (present, expected)} training files of the group's data copy."""
     from src.data.layout import H36M_TRAIN_SUBJECTS, cmu_files, h36m_files
 
     data = group.runs[0]["config"].get("data", {})
@@ -185,9 +185,7 @@ class Results:
         return refs
 
     def references(self, group: Group) -> list[Reference]:
-        """The group's published references on its dataset, the model's own paper first: for Li
-        et al.'s ablations references.json's, else the one its evaluation printed beside ours;
-        then other papers' numbers of the same model."""
+        """Its published references on its dataset, the model's own paper first."""
         return self._refs[group]
 
     def same_set(self, group: Group, reference: Reference) -> dict[int, float]:
@@ -230,8 +228,7 @@ class Results:
 
     def validation_means(self, group: Group, protocol: str) -> dict[int, dict[int, float]]:
         """{iterations: {ms: mean over seeds}} of the average Euler error at the validations
-        every seed made (their TensorBoard curves); {} when a run has none or validated on
-        another protocol."""
+        every seed made; {} when a run has none or validated on another protocol."""
         curves = [r.get("validations") or {} for r in group.runs]
         protocols = {r["config"]["data"].get("eval_protocol", "srnn") for r in group.runs}
         if not all(curves) or protocols != {protocol}:

@@ -1,8 +1,7 @@
-"""Grouping runs into the page's rows: runs of one experiment (run_name), dataset and
-configuration differ only in their seed. Two runs with the same configuration and seed (a run
-and a sweep job of the same settings, a copy, the earlier segments of a resumed run) are one
-seed: the one that trained longest is kept, and the group says whether each other is a copy or
-a segment.
+"""The page's rows: runs of one experiment (run_name), dataset and configuration, which differ
+only in their seed. Runs of one configuration and seed (a run and a sweep job, a copy, the
+earlier segments of a resumed run) are one seed: the longest-trained is kept, the group says
+whether each other is a copy or a segment.
 """
 
 from __future__ import annotations
@@ -47,8 +46,8 @@ def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
 
 
 def identity(config: dict) -> dict[str, str]:
-    """What makes a run the experiment it is: its config less seed, paths, device, logging
-    (trainer keys that change the numbers, such as precision, stay)."""
+    """The config less seed, paths, device, logging (trainer keys that change the numbers,
+    such as precision, stay)."""
     return {
         k: v
         for k, v in _flatten(config).items()
@@ -62,9 +61,8 @@ def seed_of(run: dict):
 
 @dataclass(eq=False)  # a group is itself: hashed and compared by identity
 class Group:
-    """Runs of one experiment on one dataset at one budget that differ only in their seed.
-    settings: the config values (budget aside) that tell it from the other groups of its
-    experiment; left_out: why runs identical to a kept one count once."""
+    """Runs of one experiment, dataset and budget differing only in their seed. settings: what
+    tells it from its experiment's other groups; left_out: why identical runs count once."""
 
     label: str
     run_name: str
@@ -88,8 +86,7 @@ class Group:
 
 
 def _segments_before(run: dict, members: list[dict]) -> set[str]:
-    """The folders of the runs a resumed run continues: the one its ckpt_path lies in, the one
-    that one resumed from, and so on (an absolute ckpt_path only)."""
+    """The folders of the runs a resumed run continues (its absolute ckpt_path's, and so on)."""
     by_folder = {m["folder"]: m for m in members if m.get("folder")}
     found: set[str] = set()
     while (ckpt := run["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
@@ -103,9 +100,8 @@ def _segments_before(run: dict, members: list[dict]) -> set[str]:
 
 
 def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
-    """One run per seed: the one that trained longest, then a finished one, then the first
-    given; a resumed run's validation curve joined over its segments; a line per run left out
-    saying which was kept and whether it is an earlier segment of it or a copy."""
+    """One run per seed (the longest-trained, then a finished one, then the first given), a
+    resumed run's validation curve joined over its segments, and a line per run left out."""
     rank = lambda r: (r.get("iterations") or 0, bool(r.get("finished", True)))  # noqa: E731
     kept: dict = {}
     for run in members:
@@ -160,9 +156,8 @@ def _short_label(run_name: str, settings: dict) -> str:
 
 
 def group_runs(runs: list[dict]) -> list[Group]:
-    """Group run dicts by run_name, dataset and configuration, in the page's order: H3.6M's
-    rows, then CMU's, then other data (both papers' order), Li et al.'s ablations last, an
-    experiment's budgets together, the longest first; otherwise in order of appearance."""
+    """Groups in the page's order: H3.6M, CMU, other data (the papers' order), Li et al.'s
+    ablations last, an experiment's budgets together, the longest first; else as given."""
     by_key: dict[tuple, list[dict]] = {}
     for run in runs:
         config = run["config"]
@@ -198,8 +193,8 @@ def group_runs(runs: list[dict]) -> list[Group]:
 
 
 def parse_notes(items: list[str], groups: list[Group]) -> dict[str, str]:
-    """{label: text} from `LABEL=TEXT` items; LABEL is a group's short or full label. A label
-    may hold '=' ("m (data.future_len=10)"): the longest label the item starts with wins."""
+    """{label: text} of `LABEL=TEXT` items, LABEL a group's short or full label; as one may
+    hold '=' ("m (data.future_len=10)"), the longest label the item starts with wins."""
     names = {g.full_label: g.label for g in groups} | {g.label: g.label for g in groups}
     notes = {}
     for item in items:

@@ -1,13 +1,11 @@
-"""Where src.report's runs come from: finished run folders (config.yaml beside checkpoints/ or
-summary.yaml, src.train's layout); run records, a run's evaluations kept as one small JSON
-file (docs/runs); and scored predictions files.
+"""Where src.report's runs come from: finished run folders (src.train's layout), run records
+(one small JSON file per evaluated run, docs/runs) and scored predictions files.
 
-Each run is evaluated on its best checkpoint (lowest validation error; validation runs on the
-test windows, as in both reference implementations, so this selection uses test information,
-protocol section 8) and its last (no test information). A record holds what the page needs of
-an evaluated run and no checkpoint, so a page can grow over several machines: a report
-evaluates only the runs it is given and reads the others from their records. A record is named
-`<run_name>_seed<seed>_<config hash>.json`: the same run evaluated again replaces it.
+A run is evaluated on its best checkpoint (lowest validation error, on the test windows as in
+both reference implementations, so it uses test information: protocol section 8) and its last.
+A record holds what the page needs of an evaluated run and no checkpoint, so that a page grows
+over several machines: a report evaluates only the runs it is given and reads the others'
+records. `<run_name>_seed<seed>_<config hash>.json`: the run evaluated again replaces it.
 """
 
 from __future__ import annotations
@@ -49,8 +47,7 @@ def _natural(path: Path) -> list:
 
 
 def discover_runs(paths: list) -> list[Path]:
-    """The run folders given, or found under the folders given, in sweep order (job 2 before
-    job 10); each once."""
+    """The run folders given or found under them, in sweep order (job 2 before 10), each once."""
     runs: list[Path] = []
     for path in (Path(p).resolve() for p in paths):
         if not path.exists():
@@ -67,10 +64,9 @@ def discover_runs(paths: list) -> list[Path]:
 
 
 def display_root(runs: list[Path]) -> Path:
-    """The folder the page names run folders relative to, so that it shows no machine's paths:
-    the project for runs inside it, else the runs' common folder, raised until each run shows
-    as two parts at least (<run_name>/<time>: two experiments started in the same second must
-    not read alike)."""
+    """The folder the page names run folders relative to (no machine's paths): the project, or
+    the runs' common folder raised until each shows as <run_name>/<time> at least (two
+    experiments started in the same second must not read alike)."""
     runs = [Path(r).resolve() for r in runs]
     if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
         return PROJECT_ROOT
@@ -81,10 +77,9 @@ def display_root(runs: list[Path]) -> Path:
 
 
 def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
-    """({"best": path, "last": path}, notes). best is summary.yaml's best_checkpoint, the
-    lowest validation error of the whole run, resumes included (it may lie in an earlier
-    segment's folder; in a moved folder it is found by its name); without it, the folder's
-    newest best-*.ckpt, and the notes say so. last is checkpoints/last.ckpt."""
+    """({"best": path, "last": path}, notes). best: summary.yaml's, of the whole run, resumes
+    included (maybe in an earlier segment's folder; in a moved one found by its name), else the
+    folder's newest best-*.ckpt, said in the notes. last: checkpoints/last.ckpt."""
     folder, notes, best, summary = run / "checkpoints", [], None, _yaml(run / "summary.yaml")
     if named := summary.get("best_checkpoint"):
         named = Path(named)
@@ -105,8 +100,8 @@ def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
 
 
 def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
-    """The checkpoint's training iteration, and the files its data copy lacked when it trained
-    (an evaluation sees only the test files). The report's one direct read of a checkpoint."""
+    """The checkpoint's iteration, and the files its data copy lacked when it trained (an
+    evaluation sees only the test files)."""
     from src.lit.checkpoints import read_checkpoint
 
     ckpt = read_checkpoint(path)
@@ -116,7 +111,6 @@ def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
 
 
 def load_run(path: Path, root: Path) -> dict:
-    """One run folder as src.report's run dict; paths shown relative to `root`."""
     config, summary = _yaml(path / "config.yaml"), _yaml(path / "summary.yaml")
     checkpoints, notes = find_checkpoints(path)
     facts = {s: checkpoint_facts(p) for s, p in checkpoints.items()}
@@ -143,8 +137,7 @@ def load_run(path: Path, root: Path) -> dict:
 
 
 def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list[dict]:
-    """The run folders given (or found under them) and the runs recorded in `records`; a
-    folder given again replaces its record."""
+    """The runs of the folders given and of `records`; a folder given replaces its record."""
     folders = discover_runs(paths)
     root = display_root(folders) if folders else PROJECT_ROOT
     runs = [load_run(folder, root) for folder in folders]
@@ -168,8 +161,8 @@ def record_name(run: dict) -> str:
 
 
 def _portable(value, run_path: str, shown: dict[str, str]):
-    """`value` without a machine's absolute paths: a checkpoint as the page shows it (else
-    inside the run's shown folder), any other absolute path (an override's) by its last part."""
+    """`value` without absolute paths: a checkpoint as the page shows it (else in the run's
+    shown folder), another absolute path (an override's) by its last part."""
     if isinstance(value, dict):
         out = {k: _portable(v, run_path, shown) for k, v in value.items()}
         if isinstance(ckpt := value.get("checkpoint"), str):
@@ -185,7 +178,6 @@ def _portable(value, run_path: str, shown: dict[str, str]):
 
 
 def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
-    """Write the evaluated run's record into `folder`; returns its path."""
     shown = run.get("shown_checkpoints", {})
     record = {
         "format": RECORD_FORMAT,
@@ -200,8 +192,8 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
 
 
 def read_records(folder: Path, protocols: list[str]) -> list[dict]:
-    """The runs recorded in `folder`, each with a note naming its record. Refuses, naming the
-    file and the fix, a file that is not a record or lacks one of `protocols`."""
+    """The runs recorded in `folder`, each with a note naming its record; a file that is not a
+    record, or lacks one of `protocols`, is refused naming the fix."""
     if not Path(folder).is_dir():
         raise ConfigError(
             f"records={folder} is not a folder; give the folder of run records (docs/runs holds "
@@ -247,8 +239,7 @@ def _sha256(path: Path) -> str:
 
 
 def mark_archives(entries: list[dict], archives: Path | None) -> None:
-    """Set each entry's `archive_sha256` ("h3.6m.zip 1a2b…") where its dataset's archive is in
-    the archive folder."""
+    """Each entry's `archive_sha256` ("h3.6m.zip 1a2b…"), where its dataset's archive is."""
     for entry in entries:
         name = ARCHIVES.get(entry.get("dataset") or entry["config"]["data"]["name"])
         if archives is not None and name and (archives / name).exists():
@@ -256,8 +247,8 @@ def mark_archives(entries: list[dict], archives: Path | None) -> None:
 
 
 def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
-    """Rows beside the baselines for models scored from a predictions file (`python -m src.eval
-    predictions=...`): one per model and dataset, from the results.json of each protocol."""
+    """A row beside the baselines per model and dataset scored from a predictions file (`src.eval
+    predictions=...`), from its results.json of each protocol."""
     entries: dict[tuple[str, str], dict] = {}
     for path in paths:
         result = read_results(path)
