@@ -17,7 +17,7 @@ from src.lit.factory import ConfigError
 from src.report import evaluate_run, main
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
-from src.reporting.page import headline_table, readme_block
+from src.reporting.headline import headline_table, readme_block
 from src.reporting.page import (
     averages_table,
     build_page,
@@ -641,7 +641,7 @@ def test_both_budgets_are_rows_of_the_headline_the_longest_with_the_verdict(tmp_
     ]
     assert rows[0][-1].startswith("**reproduces**") and rows[1][-1] == "shorter budget"
     assert not why  # the shorter budget's miss is not the experiment's
-    from src.reporting.page import figures
+    from src.reporting.headline import figures
 
     _, validation = figures(results, "srnn")
     titles = [ax.get_title() for ax in validation.axes]

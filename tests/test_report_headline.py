@@ -13,7 +13,7 @@ from src.report import main
 from src.reporting.claims import claims, claims_section
 from src.reporting.frame import Results
 from src.reporting.groups import ABLATIONS, group_runs
-from src.reporting.page import figures, headline_table, readme_block
+from src.reporting.headline import figures, headline_table, readme_block
 from src.reporting.page import averages_table, build_page, reading
 from src.reporting.published import KNOWN_SLIPS, published_for
 from src.reporting.runs import display_root
