@@ -1,17 +1,14 @@
-"""Error-versus-horizon plot of several evaluations (Li et al. 2018, Figure 4, on our runs).
+"""Error against horizon of several evaluations (Li et al. 2018, Figure 4, on our runs):
 
-    python -m src.plot_errors results=[runs/a/t/results.json,runs/b/t/results.json]
-    python -m src.plot_errors results=[...] metric=mpjpe action=walking out=walking_mpjpe.png
+    python -m src.plot_errors results=[a/results.json,b/results.json] action=walking
 
-One line per results.json of `python -m src.eval`, for the average row (mean over the evaluated
-actions, protocol §4.1 step 6) or one action; `published=true` adds the paper's curve, dashed,
-where the results carry one. The image goes into the command's own run folder unless `out=`
-names a new file: nothing is written over. Each line is labelled by its run's name and dataset,
-told apart further where two would read the same; the files must share one dataset.
+A line per results.json of src.eval (one dataset), `published=true` adds the paper's, dashed.
+The image goes into the command's own run folder unless `out=` names a new file.
 """
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import matplotlib
@@ -28,64 +25,65 @@ from src.reporting.tables import read_results
 METRICS = {"euler": "Euler-angle error (rad)", "mpjpe": "MPJPE"}
 
 
-def curve(
-    results: dict, metric: str = "euler", action: str = "average", source: str = "results"
-) -> tuple[dict[int, float], dict[int, float] | None, str]:
-    """({ms: ours}, {ms: published} or None, unit) of one metric and action (or "average")."""
-    tables = [t for t in results["tables"] if t["metric"] == metric]
-    if not tables:
+def curve(results: dict, metric: str, action: str, source: str) -> tuple[dict, dict | None, dict]:
+    """({ms: ours}, {ms: published} or None, the table) of one metric and action."""
+    if not (tables := [t for t in results["tables"] if t["metric"] == metric]):
         found = [t["metric"] for t in results["tables"]]
         raise ConfigError(f"{source}: no {metric!r} table (has {found}); use metric=euler|mpjpe")
     table = tables[0]
-    if action == "average":
-        if table["average"] is None:
-            raise ConfigError(f"{source}: no action was evaluated, so there is no average")
-        values = table["average"]["values"]
-    elif action in table["values"]:
-        values = table["values"][action]
-    elif action in table["absent"]:
+    if action == "average" and table["average"] is None:
+        raise ConfigError(f"{source}: no action was evaluated, so there is no average")
+    if action in table["absent"]:
         raise ConfigError(f"{source}: {action} is absent there ({table['absent'][action]})")
-    else:
+    if action != "average" and action not in table["values"]:
         raise ConfigError(f"{source}: unknown action {action!r}; actions: {table['actions']}")
+    values = table["average"]["values"] if action == "average" else table["values"][action]
     published = (table.get("published") or {}).get(action)
     as_ms = lambda row: {int(k): float(v) for k, v in row.items()}  # noqa: E731
-    return as_ms(values), as_ms(published) if published else None, table["unit"]
+    return as_ms(values), as_ms(published) if published else None, table
 
 
-def plot_errors(
-    paths: list[str | Path],
-    out: str | Path,
-    metric: str = "euler",
-    action: str = "average",
-    labels: list[str] | None = None,
-    published: bool = False,
-) -> Path:
-    """Write the error-versus-horizon PNG of the results.json files `paths`; return its path."""
+def plot_errors(paths, out, metric="euler", action="average", labels=None, published=False):
     if metric not in METRICS:
         raise ConfigError(f"metric={metric!r}: choose one of {', '.join(METRICS)}")
     if not paths:
         raise ConfigError("results=[...] is empty: give at least one results.json")
     if labels is not None and len(labels) != len(paths):
         raise ConfigError(f"labels has {len(labels)} entries for {len(paths)} results files")
-    out = Path(out)
-    check_out(out)
+    # A plot is the user's: never written over. savefig would replace a file, add .png to a
+    # name without an extension (printed without it) and fail on an unknown one.
+    out, formats = Path(out), FigureCanvasBase.get_supported_filetypes()
+    if out.suffix.lstrip(".").lower() not in formats:
+        others = ", ".join(f".{f}" for f in sorted(formats) if f not in ("png", "pdf", "svg"))
+        raise ConfigError(
+            f"out={out} has no image extension matplotlib writes; end it in .png, .pdf or .svg "
+            f"(or {others})"
+        )
+    if out.exists():
+        raise ConfigError(
+            f"out={out} already exists; nothing was overwritten. Give another out=, or remove "
+            "the file first."
+        )
     results = [read_results(path) for path in paths]
-    datasets = one_dataset(results, paths)
+    found = [r.get("provenance", {}).get("dataset") or "?" for r in results]
+    if len(datasets := sorted(set(found) - {"?"}) or ["?"]) > 1:
+        each = ", ".join(f"{Path(p)}: {d}" for p, d in zip(paths, found, strict=True))
+        raise ConfigError(
+            f"the results come from different datasets ({', '.join(datasets)}), whose errors are "
+            f"not comparable on one plot ({each}). Plot each dataset on its own."
+        )
     names = legend_labels(results, paths) if labels is None else list(labels)
-    if len(set(names)) < len(names):
-        twice = sorted({n for n in names if names.count(n) > 1})
+    if twice := sorted(n for n, k in Counter(names).items() if k > 1):
         raise ConfigError(f"labels name {twice} more than once; give each results file its own")
     curves, dashed, units = [], [], set()
     for name, data, path in zip(names, results, paths, strict=True):
-        ours, pub, unit = curve(data, metric, action, str(path))
-        units.add(unit)
+        ours, pub, table = curve(data, metric, action, str(path))
+        units.add(table["unit"])
         curves.append((name, ours))
-        if published and pub and datasets[0] in published_datasets():
-            ref = next(t for t in data["tables"] if t["metric"] == metric)["published_label"]
-            paper = f"{ref or 'published'} (paper)"
-            if paper not in dashed:
-                curves.append((paper, pub))
-                dashed.append(paper)
+        paper = f"{table.get('published_label') or 'published'} (paper)"
+        if published and pub and datasets[0] in published_datasets() and paper not in dashed:
+            curves.append((paper, pub))
+            dashed.append(paper)
     unit = "/".join(sorted(units))
     fig = error_vs_horizon(
         curves,
@@ -98,69 +96,28 @@ def plot_errors(
     return out
 
 
-def check_out(out: Path) -> None:
-    """A plot is the user's: never written over. savefig would replace an existing file, add
-    .png to a name without an extension (printed without it) and fail on an unknown one."""
-    formats = FigureCanvasBase.get_supported_filetypes()
-    if out.suffix.lstrip(".").lower() not in formats:
-        raise ConfigError(
-            f"out={out} has no image extension matplotlib writes; end it in .png, .pdf or .svg "
-            f"(or {', '.join(f'.{f}' for f in sorted(formats) if f not in ('png', 'pdf', 'svg'))})"
-        )
-    if out.exists():
-        raise ConfigError(
-            f"out={out} already exists; nothing was overwritten. Give another out=, or remove "
-            "the file first."
-        )
-
-
-def one_dataset(results: list[dict], paths: list) -> list[str]:
-    """The dataset of the results files, which must be one: refuse a mix, naming each file's."""
-    found = [r.get("provenance", {}).get("dataset") or "?" for r in results]
-    known = sorted(set(found) - {"?"})
-    if len(known) > 1:
-        each = ", ".join(f"{Path(p)}: {d}" for p, d in zip(paths, found, strict=True))
-        raise ConfigError(
-            f"the results come from different datasets ({', '.join(known)}), whose errors are "
-            f"not comparable on one plot ({each}). Plot each dataset on its own."
-        )
-    return known or ["?"]
-
-
 def legend_labels(results: list[dict], paths: list) -> list[str]:
-    """One legend entry per results file: "<run name> (<dataset>)", followed, where two would
-    read the same, by what tells them apart (protocol, checkpoint, folder), else a number."""
-    labels = []
-    for data, path in zip(results, paths, strict=True):
-        prov = data.get("provenance", {})
-        run = prov.get("run_name") or prov.get("model") or Path(path).parent.name
-        labels.append(f"{run} ({prov.get('dataset') or '?'})")
+    """ "<run name> (<dataset>)" per file, and where two read the same, what tells them apart
+    (protocol, checkpoint, folder), else a number."""
+    provs = [r.get("provenance", {}) for r in results]
+    run = lambda p, path: p.get("run_name") or p.get("model") or Path(path).parent.name  # noqa: E731
+    labels = [f"{run(p, x)} ({p.get('dataset') or '?'})" for p, x in zip(provs, paths, strict=True)]
     for extra in (
-        lambda prov, path: prov.get("eval_protocol"),
-        lambda prov, path: Path(prov["checkpoint"]).name if prov.get("checkpoint") else None,
-        lambda prov, path: Path(path).parent.name,
+        lambda p, path: p.get("eval_protocol"),
+        lambda p, path: Path(p["checkpoint"]).name if p.get("checkpoint") else None,
+        lambda p, path: Path(path).parent.name,
     ):
-        labels = _tell_apart(labels, results, paths, extra)
-    seen: dict[str, int] = {}
-    unique = []
-    for label in labels:
-        seen[label] = seen.get(label, 0) + 1
-        unique.append(label if labels.count(label) == 1 else f"{label} #{seen[label]}")
-    return unique
-
-
-def _tell_apart(labels: list[str], results: list[dict], paths: list, extra) -> list[str]:
-    """Add `extra(provenance, path)` to the labels that coincide, where it differs among them."""
-    out = list(labels)
-    for label in set(labels):
-        same = [i for i, x in enumerate(labels) if x == label]
-        if len(same) < 2:
-            continue
-        values = [extra(results[i].get("provenance", {}), paths[i]) for i in same]
-        if len(set(values)) > 1:
-            for i, value in zip(same, values, strict=True):
-                out[i] = f"{label}, {value}" if value else label
-    return out
+        values = [extra(p, path) for p, path in zip(provs, paths, strict=True)]
+        alike = [{values[j] for j, y in enumerate(labels) if y == x} for x in labels]
+        labels = [
+            f"{x}, {v}" if v and len(same) > 1 else x
+            for x, v, same in zip(labels, values, alike, strict=True)
+        ]
+    counts, seen = Counter(labels), Counter()
+    for k, label in enumerate(labels):
+        seen[label] += 1
+        labels[k] = label if counts[label] == 1 else f"{label} #{seen[label]}"
+    return labels
 
 
 @hydra_entry("plot_errors")
@@ -174,11 +131,11 @@ def main(cfg: DictConfig) -> Path:
     labels = None if cfg.labels is None else [str(x) for x in cfg.labels]
     out = cfg.out or Path(cfg.paths.output_dir) / f"errors_{cfg.metric}_{cfg.action}.png"
     with nothing_left_if_refused(None):
-        written = plot_errors(
+        out = plot_errors(
             [str(p) for p in paths], out, cfg.metric, cfg.action, labels, cfg.published
         )
-    print(f"written to {written}")
-    return written
+    print(f"written to {out}")
+    return out
 
 
 if __name__ == "__main__":

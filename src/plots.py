@@ -1,15 +1,12 @@
-"""Pictures of motion (3D stick figures, frame strips, animations), the rows of one evaluation
-window that src.visualize and the TensorBoard frame-strip callback draw, and error curves.
-
-Poses are joint positions (J, 3) after `yz_swap` (z up); a motion is (T, J, 3), observed frames
-first, drawn grey, then the future in the row's colour. Figures are `matplotlib.figure.Figure`
-(no pyplot): they render with Agg, without a display; a notebook shows them with display(fig).
+"""Pictures of motion (stick figures, frame strips, animations) for src.visualize and the
+TensorBoard callback, and error curves. A pose is joint positions (J, 3) after `yz_swap` (z
+up), a motion (T, J, 3): observed frames first, drawn grey, then the future in the row's
+colour. Figures are `matplotlib.figure.Figure` (no pyplot): they render without a display.
 """
 
 from __future__ import annotations
 
 import textwrap
-from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -17,7 +14,6 @@ import torch
 from matplotlib.animation import FuncAnimation
 from matplotlib.figure import Figure
 
-from src.data.base import MotionDataModule
 from src.data.synthetic import SyntheticDataModule
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.models.baselines import ZeroVelocity
@@ -30,6 +26,13 @@ PALETTE = {
     "red": ("#c62828", "#f28b82"),
     "blue": ("#1f5fb4", "#8ab4f8"),
 }
+# Joints on the body's left, as the reference visualisation colours them (Martinez et al.'s
+# viz.py marks H3.6M joints 1-5 and 24-31 as left; CMU's left leg and arm are the chains at -x
+# in the rest pose). The H3.6M arms both point up in the rest pose, hence explicit lists.
+LEFT_JOINTS = {
+    "h36m": frozenset([*range(1, 6), *range(24, 32)]),
+    "cmu": frozenset([*range(8, 13), *range(30, 38)]),
+}
 
 
 class PoseRow(NamedTuple):
@@ -41,110 +44,75 @@ class PoseRow(NamedTuple):
 
 
 def skeleton_bones(skeleton: Skeleton) -> list[tuple[int, int]]:
-    """(parent, child) pairs of the kinematic tree, without zero-length bones (a child with a
-    zero offset sits on its parent, e.g. the H3.6M hand and thumb sites)."""
+    """(parent, child) pairs, less zero-length bones (e.g. the H3.6M hand and thumb sites)."""
     offsets = skeleton.offsets.abs().sum(-1).tolist()
     return [(p, j) for j, p in enumerate(skeleton.parents) if j > 0 and offsets[j] > 0]
 
 
-# Joints on the body's left, as the reference visualisation colours them (Martinez et al.'s
-# viz.py marks H3.6M joints 1-5 and 24-31 as left; the CMU tree is laid out the same way, with
-# the left leg and arm being the chains at -x in the rest pose). The H3.6M arms cannot be told
-# apart from the rest pose (both point up), hence the explicit lists.
-LEFT_JOINTS = {
-    "h36m": frozenset([*range(1, 6), *range(24, 32)]),
-    "cmu": frozenset([*range(8, 13), *range(30, 38)]),
-}
-
-
-def bone_sides(skeleton: Skeleton, bones: Sequence[tuple[int, int]]) -> np.ndarray:
+def bone_sides(skeleton: Skeleton, bones) -> np.ndarray:
     """1 for bones of the body's left side (drawn in the lighter shade), 0 otherwise."""
     left = LEFT_JOINTS.get(skeleton.name, frozenset())
     return np.array([int(c in left) for _, c in bones], dtype=int)
 
 
-# ---------------------------------------------------------------------------- one window
 def positions(frames: torch.Tensor, skeleton: Skeleton) -> np.ndarray:
     """Joint positions (T, J, 3) of unnormalised frames (T, F), body frame, z up."""
-    xyz = forward_kinematics(frames.double(), skeleton, zero_global=True)
-    return yz_swap(xyz).numpy()
+    return yz_swap(forward_kinematics(frames.double(), skeleton, zero_global=True)).numpy()
 
 
 @torch.no_grad()
-def predict_window(dm: MotionDataModule, module, index: int) -> dict:
-    """Unnormalised full frames (F columns) of evaluation window `index`: `observed` (50, F),
-    `future` (T, F) ground truth and `prediction` (T, F), decoded fully autoregressively."""
+def window_rows(
+    dm, module, index: int, baseline: bool = True, observed_shown: int = 25,
+    name: str | None = None, dataset: str | None = None
+) -> tuple[list[PoseRow], int, str]:  # fmt: skip
+    """(rows, n_observed, description) of evaluation window `index`: the prediction of `module`
+    (a MotionPredictor, dropout off), the ground truth and (with `baseline`) zero-velocity, each
+    the last `observed_shown` observed frames, then the future. The description names `dataset`
+    (default: the data's own; synthetic data's `dataset_name` reads H3.6M)."""
     item = dm.val_dataloader().dataset[index]
     was_training = module.training
-    module.eval()  # dropout off, as in evaluation
+    module.eval()
     try:
         observed = item["observed"][None].to(module.device)
         T = item["future"].shape[0]
         pred = module(observed, T, action=item["action"][None].to(module.device))[0]
     finally:
         module.train(was_training)
-    future = item["future"].to(module.device)
-    frames = {"observed": observed[0], "future": future, "prediction": pred}
-    return {k: module.normalizer.unnormalize(v).cpu() for k, v in frames.items()}
-
-
-def data_name(dm: MotionDataModule) -> str:
-    """The dataset's own name for titles: "synthetic" for the synthetic data, which reads as
-    H3.6M (its `dataset_name`, which picks the skeleton and the protocol) but is not."""
-    return "synthetic" if isinstance(dm, SyntheticDataModule) else dm.dataset_name
-
-
-def window_rows(
-    dm: MotionDataModule, module, index: int, baseline: bool = True, observed_shown: int = 25,
-    name: str | None = None, dataset: str | None = None
-) -> tuple[list[PoseRow], int, str]:  # fmt: skip
-    """(rows, n_observed, description) of evaluation window `index` (into `dm.eval_windows`)
-    for `frame_strip` / `animate`: the prediction of `module` (a MotionPredictor), the ground
-    truth and (when `baseline` and the model is not already zero-velocity) zero-velocity; each
-    row is the last `observed_shown` observed frames followed by the future. The description
-    names `dataset` (default: the data's own name, see `data_name`)."""
-    frames = predict_window(dm, module, index)
+    frames = {
+        "observed": observed[0],
+        "future": item["future"].to(module.device),
+        "prediction": pred,
+    }
+    frames = {k: module.normalizer.unnormalize(v).cpu() for k, v in frames.items()}
     obs = frames["observed"][-observed_shown:]
-    T = frames["future"].shape[0]
     skeleton = Skeleton.load(module.dataset)
     name = name or module.run_info.get("config", {}).get("model", {}).get("name")
     name = name or type(module.net).__name__
     shown = {"prediction": (f"prediction ({name})", "red"), "future": ("ground truth", "green")}
     if baseline and not isinstance(module.net, ZeroVelocity):
-        # Zero-velocity repeats the last observed frame (protocol §7.1).
-        frames["still"] = obs[-1:].expand(T, -1)
+        frames["still"] = obs[-1:].expand(T, -1)  # zero-velocity repeats the last observed frame
         shown["still"] = ("zero-velocity", "blue")
     rows = [PoseRow(label, positions(torch.cat([obs, frames[k]]), skeleton), color)
             for k, (label, color) in shown.items()]  # fmt: skip
     w = dm.eval_windows[index]
     window = sum(v.action == w.action for v in dm.eval_windows[:index])  # among its action's
-    what = (
-        f"{name} on {dataset or data_name(dm)}: {w.action}, window {window} ({w.sequence}, "
-        f"start {w.start})"
-    )
+    data = dataset or ("synthetic" if isinstance(dm, SyntheticDataModule) else dm.dataset_name)
+    what = f"{name} on {data}: {w.action}, window {window} ({w.sequence}, start {w.start})"
     return rows, len(obs), what
 
 
-# ---------------------------------------------------------------------------- drawing
-def _limits(motions: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) corners (3,) of one box holding every pose, so all panels share a scale."""
-    pts = np.concatenate([m.reshape(-1, 3) for m in motions])
-    lo, hi = pts.min(0), pts.max(0)
-    pad = 0.05 * float((hi - lo).max()) + 1e-9
-    return lo - pad, hi + pad
-
-
-def _setup_axes(ax, box: tuple[np.ndarray, np.ndarray], elev: float, azim: float) -> None:
+def _axes(fig, rows: int, cols: int, k: int, box, view):
+    ax = fig.add_subplot(rows, cols, k, projection="3d")
     lo, hi = box
     ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
-    # Box sides proportional to the data ranges: equal scale on all axes, no empty cube.
     ax.set_box_aspect(tuple(hi - lo), zoom=1.35)
     ax.set_proj_type("ortho")
-    ax.view_init(elev=elev, azim=azim)
+    ax.view_init(elev=view[0], azim=view[1])
     ax.set_axis_off()
+    return ax
 
 
-def _segments(pose: np.ndarray, bones: Sequence[tuple[int, int]]) -> np.ndarray:
+def _segments(pose: np.ndarray, bones) -> np.ndarray:
     """(3 * len(bones), 3) points: each bone's two ends, then a NaN row that breaks the line,
     so that one Line3D draws many bones (one artist per shade keeps animations fast)."""
     idx = np.asarray(bones, dtype=int).reshape(-1, 2)
@@ -153,34 +121,24 @@ def _segments(pose: np.ndarray, bones: Sequence[tuple[int, int]]) -> np.ndarray:
     return pts.reshape(-1, 3)
 
 
-def draw_skeleton(
-    ax,
-    pose: np.ndarray,
-    bones: Sequence[tuple[int, int]],
-    colors: tuple[str, str] | str = PALETTE["red"],
-    sides: np.ndarray | None = None,
-    linewidth: float = 2.0,
-) -> list:
-    """Draw one pose (J, 3) on a 3D axes, a line per bone, in `colors` (a (right and spine,
-    left) pair or one colour; `sides`, one 0/1 per bone, says which). Returns the two Line3D
-    objects (right, left), which an animation moves with `set_data_3d`."""
-    pose = np.asarray(pose)
-    if pose.ndim != 2 or pose.shape[1] != 3:
-        raise ValueError(f"pose must be (J, 3) joint positions, got shape {pose.shape}")
+def draw_skeleton(ax, pose, bones, colors=PALETTE["red"], sides=None, linewidth=2.0) -> list:
+    """One pose (J, 3) in `colors` ((right and spine, left) or one; `sides`: 0/1 per bone); the
+    two Line3D objects (right, left), which an animation moves with `set_data_3d`."""
     pair = (colors, colors) if isinstance(colors, str) else colors
     sides = np.zeros(len(bones), dtype=int) if sides is None else np.asarray(sides)
     lines = []
     for side in (0, 1):
-        seg = _segments(pose, [b for b, s in zip(bones, sides, strict=True) if s == side])
-        (line,) = ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color=pair[side], lw=linewidth)
-        lines.append(line)
+        seg = _segments(
+            np.asarray(pose), [b for b, s in zip(bones, sides, strict=True) if s == side]
+        )
+        lines += ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color=pair[side], lw=linewidth)
     return lines
 
 
 def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3) -> list[int]:
-    """Frame indices of a frame strip: `n_before` observed frames ending at the last observed
-    one, then every `step`-th future frame counted back from the last, so both the first
-    predicted frame (when step divides the future length - 1) and the last one are shown."""
+    """`n_before` observed frames ending at the last observed one, then every `step`-th future
+    frame counted back from the last (so the first predicted frame shows when step divides the
+    future length - 1)."""
     if not 0 < n_observed < n_total or step < 1 or n_before < 0:
         raise ValueError(
             f"need 0 < n_observed < n_total, step >= 1, n_before >= 0: got "
@@ -191,7 +149,8 @@ def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3
     return sorted(f for f in before if f >= 0) + sorted(after)
 
 
-def _check_rows(rows: Sequence[PoseRow], n_observed: int) -> int:
+def _prepare(rows, skeleton: Skeleton, n_observed: int):
+    """(T, bones, sides, box) of checked rows; box holds every pose: all panels share a scale."""
     if not rows:
         raise ValueError("nothing to draw: rows is empty")
     T = rows[0].positions.shape[0]
@@ -204,67 +163,53 @@ def _check_rows(rows: Sequence[PoseRow], n_observed: int) -> int:
             raise ValueError(f"row {row.label!r}: color {row.color!r} not in {sorted(PALETTE)}")
     if not 0 < n_observed < T:
         raise ValueError(f"n_observed={n_observed} must lie between 1 and T-1={T - 1}")
-    return T
+    bones = skeleton_bones(skeleton)
+    pts = np.concatenate([r.positions.reshape(-1, 3) for r in rows])
+    lo, hi = pts.min(0), pts.max(0)
+    pad = 0.05 * float((hi - lo).max()) + 1e-9
+    return T, bones, bone_sides(skeleton, bones), (lo - pad, hi + pad)
 
 
 def frame_strip(
-    rows: Sequence[PoseRow], skeleton: Skeleton, n_observed: int, frame_ms: float = 40,
-    step: int = 3, n_before: int = 3, title: str | None = None, view=VIEW, cell: float = 1.15
+    rows, skeleton: Skeleton, n_observed: int, frame_ms: float = 40, step: int = 3,
+    n_before: int = 3, title: str | None = None, view=VIEW, cell: float = 1.15
 ) -> Figure:  # fmt: skip
-    """A grid of poses in the manner of Li et al. (2018) Figure 3: one row per motion (e.g.
-    prediction, ground truth underneath, zero-velocity), the last observed frames in grey then
-    future frames in colour; column titles give the time from the last observed frame."""
-    T = _check_rows(rows, n_observed)
+    """A grid of poses as Li et al. (2018) Figure 3: a row per motion, the last observed frames
+    grey then future ones in colour, titled with the time from the last observed frame."""
+    T, bones, sides, box = _prepare(rows, skeleton, n_observed)
     frames = strip_frames(n_observed, T, step, n_before)
-    bones = skeleton_bones(skeleton)
-    sides = bone_sides(skeleton, bones)
-    box = _limits([r.positions for r in rows])
     fig = Figure(figsize=(cell * len(frames) + 1.2, cell * 1.5 * len(rows) + 0.6), dpi=100)
     fig.subplots_adjust(left=0.08, right=1.0, bottom=0.0, top=0.86, wspace=-0.25, hspace=0.0)
     for r, row in enumerate(rows):
         for c, t in enumerate(frames):
-            ax = fig.add_subplot(len(rows), len(frames), r * len(frames) + c + 1, projection="3d")
-            _setup_axes(ax, box, *view)
+            ax = _axes(fig, len(rows), len(frames), r * len(frames) + c + 1, box, view)
             colors = OBSERVED if t < n_observed else PALETTE[row.color]
             draw_skeleton(ax, row.positions[t], bones, colors, sides, linewidth=1.4)
             if r == 0:
                 ms = (t - (n_observed - 1)) * frame_ms
                 ax.set_title(f"{ms:+.0f} ms" if ms else "0 ms", fontsize=8, pad=0)
-        y = 0.86 - (r + 0.5) * 0.86 / len(rows)
-        color = PALETTE[row.color][0]
+        y, color = 0.86 - (r + 0.5) * 0.86 / len(rows), PALETTE[row.color][0]
         fig.text(0.01, y, row.label, rotation=90, va="center", fontsize=9, color=color)
-    fig.suptitle(
-        (title + "\n" if title else "") + "grey: observed, colour: future (time from the "
-        "last observed frame)",
-        fontsize=9,
-    )
+    what = "grey: observed, colour: future (time from the last observed frame)"
+    fig.suptitle((title + "\n" if title else "") + what, fontsize=9)
     return fig
 
 
 def animate(
-    rows: Sequence[PoseRow], skeleton: Skeleton, n_observed: int, frame_ms: float = 40,
-    title: str | None = None, view=VIEW, size: float = 3.0, dpi: int = 80
+    rows, skeleton: Skeleton, n_observed: int, frame_ms: float = 40, title: str | None = None,
+    view=VIEW, size: float = 3.0, dpi: int = 80
 ) -> FuncAnimation:  # fmt: skip
-    """The rows side by side as 3D stick figures, one animation frame per motion frame.
-
-    Observed frames are grey; from the first future frame on each row takes its own colour.
-    Save with `anim.save(path, writer=PillowWriter(fps=1000 / frame_ms))` or show in a notebook
-    with `IPython.display.HTML(anim.to_jshtml())`.
-    """
-    T = _check_rows(rows, n_observed)
-    bones = skeleton_bones(skeleton)
-    sides = bone_sides(skeleton, bones)
-    box = _limits([r.positions for r in rows])
+    """The rows side by side, a frame per motion frame, grey until the first future frame. Save
+    with `anim.save(path, writer=PillowWriter(fps=1000 / frame_ms))`."""
+    T, bones, sides, box = _prepare(rows, skeleton, n_observed)
     fig = Figure(figsize=(size * len(rows), size + 0.7), dpi=dpi)
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.8, wspace=0)
     all_lines = []
     for i, row in enumerate(rows):
-        ax = fig.add_subplot(1, len(rows), i + 1, projection="3d")
-        _setup_axes(ax, box, *view)
+        ax = _axes(fig, 1, len(rows), i + 1, box, view)
         ax.set_title(row.label, color=PALETTE[row.color][0], fontsize=10)
         all_lines.append(draw_skeleton(ax, row.positions[0], bones, OBSERVED, sides))
     clock = fig.suptitle("", fontsize=9)
-
     by_side = [[b for b, s in zip(bones, sides, strict=True) if s == side] for side in (0, 1)]
 
     def update(t: int) -> list:
@@ -283,8 +228,7 @@ def animate(
 
 
 class Curve(NamedTuple):
-    """One line of a panel: {x: y}, an optional ± band {x: std}, a colour index (lines of one
-    experiment share it; None: the next colour) and a matplotlib line style."""
+    """A line: {x: y}, a ± band {x: std}, a colour index (None: the next), a line style."""
 
     label: str
     values: dict
@@ -293,13 +237,8 @@ class Curve(NamedTuple):
     style: str = "-"
 
 
-def line_panels(
-    panels: Sequence[tuple[str | None, Sequence[Curve]]],
-    xlabel: str = "prediction horizon (ms)",
-    ylabel: str = "Euler-angle error (rad)",
-) -> Figure:
-    """Error curves, one panel per (title, curves) side by side, as Li et al. (2018) Figure 4;
-    a curve with `std` gets a shaded ± band. The x values of the curves are the ticks."""
+def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle error (rad)"):
+    """A panel per (title, curves), side by side, as Li et al. (2018) Figure 4."""
     if not panels or not all(curves for _, curves in panels):
         raise ValueError("line_panels: a panel without curves")
     fig = Figure(figsize=(5.0 * len(panels) + 1.0, 4.0), dpi=100)
@@ -329,14 +268,8 @@ def line_panels(
     return fig
 
 
-def error_vs_horizon(
-    results: Sequence[tuple[str, dict]],
-    title: str | None = None,
-    ylabel: str = "Euler-angle error (rad)",
-    dashed: Sequence[str] = (),
-) -> Figure:
-    """One panel of error against horizon, a line per (label, {ms: value}); the labels in
-    `dashed` (published curves) dashed."""
+def error_vs_horizon(results, title=None, ylabel="Euler-angle error (rad)", dashed=()) -> Figure:
+    """A panel, a line per (label, {ms: value}); the labels in `dashed` dashed."""
     if not results:
         raise ValueError("error_vs_horizon: no curves given")
     curves = [Curve(label, v, style="--" if label in dashed else "-") for label, v in results]

@@ -1,14 +1,10 @@
-"""Write the results page from finished training runs and run records.
+"""The results page from finished training runs and run records (src/reporting/):
 
-    python -m src.report runs=[outputs/reproduce/multiruns/<time>] budget="..."
     python -m src.report runs=[<new runs>] records=docs/runs out=docs/results.md readme=README.md
 
-Runs are found and recorded in src/reporting/runs.py, evaluated here as src.eval does (best and
-last checkpoints, each protocol) with the baselines, grouped by experiment, dataset and budget in
-groups.py and collected into one long DataFrame in frame.py, which decides the verdicts;
-headline.py, claims.py and page.py lay out the page. Every number comes from those evaluations
-and the published tables; nothing is typed in. With records=DIR each run evaluated is also
-recorded there, and the runs recorded there join the page without their folders.
+Each run's best and last checkpoints and the baselines are evaluated here as src.eval does, on
+each protocol; every number on the page comes from those evaluations, the records of runs
+evaluated before (records=DIR, where each run evaluated here is recorded) and the papers.
 """
 
 from __future__ import annotations
@@ -29,8 +25,7 @@ from src.lit.compose import compose_config
 from src.lit.factory import ConfigError, git_commit
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
-from src.reporting.headline import figures, readme_block
-from src.reporting.page import build_page, per_action_csv, replace_block
+from src.reporting.page import replace_block, write_page
 from src.reporting.runs import gather_runs, mark_archives, scored_entries, write_record
 from src.results import evaluate as run_eval
 
@@ -38,8 +33,7 @@ BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 
 def evaluate(overrides: list[str], out_dir: Path) -> dict:
-    """One src.eval evaluation (its results.json as a dict), written into out_dir; the tables
-    it prints go to a file beside its results instead of the console."""
+    """src.eval's results.json (as a dict) into out_dir, its printed tables into a file there."""
     cfg = compose_config("eval", overrides, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
@@ -47,7 +41,6 @@ def evaluate(overrides: list[str], out_dir: Path) -> dict:
 
 
 def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
-    """The run's best and last checkpoints on each protocol, into run["results"]."""
     checkpoints, iterations = run["checkpoints"], run["iterations_of"]
     name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
     same = checkpoints["last"] == checkpoints["best"]
@@ -70,7 +63,6 @@ def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> Non
 
 
 def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
-    """Each baseline on each dataset and protocol: [{label, dataset, commit, results}]."""
     baselines = []
     for dataset in datasets:
         for model in BASELINES:
@@ -80,7 +72,7 @@ def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) 
                 overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
                 result = evaluate(
                     [*overrides, "data.allow_partial=true"],
-                    work / "baselines" / f"{model}_{dataset}_{protocol}",
+                    work / "baselines" / "_".join((model, dataset, protocol)),
                 )
                 entry["results"][protocol] = result
                 entry["missing_files"] = result["provenance"]["missing_files"]
@@ -123,38 +115,17 @@ def main(cfg: DictConfig) -> int:
     for run in fresh if records else ():
         path = write_record(run, records, commit, dt.date.today().isoformat())
         print(f"recorded {run['path']} as {path}")
-
     results = Results(groups, baselines)
     out = Path(cfg.out or work / "results.md").resolve()
-    tables = out.with_suffix("")  # docs/results.md: docs/results/<metric>_<protocol>.csv
-    tables.mkdir(parents=True, exist_ok=True)
-    for metric in ("euler", "mpjpe"):
-        for protocol in protocols:
-            csv = per_action_csv(results, protocol, metric)
-            (tables / f"{metric}_{protocol}.csv").write_text(csv)
-    names = []
-    for figure, kind in zip(figures(results, protocols[0]), ("errors", "validation"), strict=True):
-        names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
-        if figure is not None:
-            figure.savefig(out.with_name(names[-1]))
-    page = build_page(
-        results, protocols, command, cfg.budget, commit, targets, notes, names, tables.name
-    )
     replaced = out.exists()
-    out.write_text(page)
-    if readme:
-        here = readme.resolve().parent
-        figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
-        page = os.path.relpath(out, here)
-        block = readme_block(results, protocols[0], commit, targets, figure, page)
-        replace_block(readme, "results", block)
+    write_page(results, out, protocols, command, cfg.budget, commit, targets, notes, readme)
     raw = [{"label": g.label, "dataset": g.dataset, "runs": g.runs} for g in groups]
-    raw = {"groups": raw, "baselines": baselines}
-    (work / "report.json").write_text(json.dumps(raw, indent=1, default=str))
+    raw = json.dumps({"groups": raw, "baselines": baselines}, indent=1, default=str)
+    (work / "report.json").write_text(raw)
     results.frame.to_csv(work / "results_long.csv", index=False)
     print(
         f"wrote {out}{' (replacing the file that was there)' if replaced else ''}, its figures "
-        f"and {tables.name}/*.csv; evaluations and the long table in {work}"
+        f"and {out.stem}/*.csv; evaluations and the long table in {work}"
     )
     return 0
 

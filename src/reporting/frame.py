@@ -1,34 +1,25 @@
 """Every evaluation as one long table, and what the results page concludes from it.
 
-`Results.frame` has one row per run, protocol, checkpoint, metric, action and horizon: g (the
-row's group in `Results.entries`: the trained groups, then the baselines), experiment, dataset,
-iterations, seed, run, protocol, checkpoint ("best", "last"; "-" for a baseline), metric,
-action, horizon, value (NaN where absent), absent (the reason) and trained (False for an
-evaluated action this data copy has no training file of). Every table of the page groups it:
-a seed's average over the actions, then mean ± std (n - 1) over the seeds.
+`Results.frame` has a row per run, protocol, checkpoint ("-" for a baseline), metric, action
+and horizon; g is the row's group in `Results.entries` (the trained groups, then the
+baselines), value is NaN where the action is absent (`absent` says why), and trained is False
+for an action this data copy has no training file of. A cell of the page is the mean ± std
+(n - 1) over the seeds of each seed's average over the actions.
 
 A group is judged against one published reference: the model's own paper, unless its same-set
 average includes a known slip of the paper and another reference's does not. The judged average
-leaves out the actions without training files (CMU washwindow); the average over all evaluated
-actions stands beside it.
+leaves out the actions without training files (CMU washwindow).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import pandas as pd
 
 from src.reporting.groups import Group
-from src.reporting.published import (
-    ALSO_PUBLISHED,
-    EXPERIMENT_PUBLISHED,
-    PAPERS,
-    ReportingError,
-    known_slips,
-    published_for,
-)
+from src.reporting.published import PAPERS, REFERENCES, ReportingError, known_slips, published_for
 from src.reporting.tables import same_set_average
 
 HORIZONS = (80, 160, 320, 400, 560, 1000)
@@ -43,10 +34,9 @@ COLUMNS += ["metric", "action", "horizon", "value", "absent", "trained"]
 KEYS = ["g", "protocol", "checkpoint", "metric"]
 
 
-@dataclass(frozen=True)
-class Reference:
-    """A published source: key "<paper> <method>", values {action: {ms: value}} (the paper's own
-    "average" row included where printed), and what it is where its name does not say."""
+class Reference(NamedTuple):
+    """A published source: key "<paper> <method>", {action: {ms: value}} (with the paper's own
+    "average" where printed), and what it is where its name does not say."""
 
     key: str
     published: dict
@@ -58,16 +48,14 @@ class Reference:
         return f"{PAPERS.get(paper, paper)} {method}"
 
 
-@dataclass
-class Judgement:
-    """ "reproduces", "misses", "not judged" (the paper prints an average only) or "-" (no
-    published values or no target); the reference and why that one; the horizons beyond the
-    target per checkpoint."""
+class Judgement(NamedTuple):
+    """ "reproduces", "misses", "not judged" (an average only is published) or "-" (nothing
+    published, or no target); the reference, why that one; the horizons missed per checkpoint."""
 
     status: str
     reference: Reference | None = None
     why: str | None = None
-    missed: dict[str, list[int]] | None = None
+    missed: dict | None = None
 
 
 def printed_gap(ours: float, published: float) -> float:
@@ -80,52 +68,27 @@ def signed(difference: float) -> str:
     return f"{round(difference, 2) + 0.0:+.2f}"
 
 
+def ms_list(horizons: list[int]) -> str:
+    return ", ".join(map(str, horizons)) + " ms"
+
+
 def stat(mean: float, std: float, n: int, decimals: int = 2) -> str:
-    """mean ± sample std over n seeds; the mean alone for one seed."""
     return f"{mean:.{decimals}f}" + (f" ± {std:.{decimals}f}" if n > 1 else "")
 
 
-def training_files(config: dict, actions: list[str], missing: list[str]) -> dict[str, tuple]:
-    """{action: (present, expected)} training files of each action in the run's data copy; {}
-    for data without a file list (synthetic)."""
+def training_files(group: Group, actions: list[str]) -> dict[str, tuple[int, int]]:
+    """{action: (present, expected)} training files of the group's data copy."""
     from src.data.layout import H36M_TRAIN_SUBJECTS, cmu_files, h36m_files
 
-    data = config.get("data", {})
+    data = group.runs[0]["config"].get("data", {})
     if data.get("name") == "h36m":
         entries = h36m_files(data.get("train_subjects", H36M_TRAIN_SUBJECTS), actions, "train")
-    elif data.get("name") == "cmu":
-        entries = cmu_files(actions, "train")
     else:
-        return {}
-    out: dict[str, tuple] = {}
-    for entry in entries:
-        present, expected = out.get(entry.action, (0, 0))
-        out[entry.action] = (present + (entry.relpath not in missing), expected + 1)
-    return out
-
-
-def missing_of(group: Group) -> list[str]:
+        entries = cmu_files(actions, "train") if data.get("name") == "cmu" else []
     keys = ("missing_files", "train_missing_files")
-    return sorted({m for r in group.runs for k in keys for m in r.get(k) or []})
-
-
-def baseline_group(entry: dict) -> Group:
-    """A baseline or scored model as a group of one run without checkpoints."""
-    run = {**entry, "seed": 0, "path": entry["label"], "results": {"-": entry["results"]}}
-    return Group(
-        entry["label"],
-        entry["label"],
-        entry["dataset"],
-        0,
-        [run],
-        kind=entry.get("kind", "baseline"),
-    )
-
-
-def _euler(group: Group) -> dict:
-    """The first run's first Euler table."""
-    first = next(iter(next(iter(group.runs[0]["results"].values())).values()))
-    return next(t for t in first["tables"] if t["metric"] == "euler")
+    missing = {m for r in group.runs for k in keys for m in r.get(k) or []}
+    files = pd.DataFrame([(e.action, e.relpath not in missing) for e in entries], columns=[0, 1])
+    return {a: (int(p.sum()), len(p)) for a, p in files.groupby(0, sort=False)[1]}
 
 
 class Results:
@@ -133,16 +96,18 @@ class Results:
 
     def __init__(self, groups: list[Group], baselines: list[dict] = ()):
         self.groups = list(groups)
-        self.baselines = [baseline_group(b) for b in baselines]
+        self.baselines = [  # a baseline or a scored model: one run without checkpoints
+            Group(b["label"], b["label"], b["dataset"], 0, [r], kind=b.get("kind", "baseline"))
+            for b in baselines
+            for r in [b | {"seed": 0, "path": b["label"], "results": {"-": b["results"]}}]
+        ]
         self.entries = [*self.groups, *self.baselines]
-        self._g = {id(e): k for k, e in enumerate(self.entries)}
+        self._g = {e: k for k, e in enumerate(self.entries)}
+        self.files = {g: training_files(g, _euler(g)["actions"]) for g in self.groups}
         self.untrained: dict[str, set[str]] = {}  # dataset -> actions without training files
-        for group in self.groups:
-            files = training_files(
-                group.runs[0]["config"], _euler(group)["actions"], missing_of(group)
-            )
+        for g, files in self.files.items():
             gone = {a for a, (present, _) in files.items() if present == 0}
-            self.untrained.setdefault(group.dataset, set()).update(gone)
+            self.untrained.setdefault(g.dataset, set()).update(gone)
         self.frame = pd.DataFrame(self._rows(), columns=COLUMNS)
         values = self.frame[self.frame.value.notna()]
         sets = values.groupby([*KEYS, "seed"]).action.agg(frozenset).groupby(level=KEYS).nunique()
@@ -153,21 +118,23 @@ class Results:
             )
         euler = values[values.metric == "euler"]
         self.evaluated = {g: list(dict.fromkeys(f.action)) for g, f in euler.groupby("g")}
-        self._seeds = {}  # judged -> each seed's average over the actions
-        for judged in (False, True):
-            kept = values[values.trained | (not judged)]
-            self._seeds[judged] = kept.groupby([*KEYS, "seed", "horizon"]).value.mean()
-        self._references: dict[int, list[Reference]] = {}
+        self._seeds = {  # judged -> each seed's average over the (judged) actions
+            judged: values[values.trained | (not judged)]
+            .groupby([*KEYS, "seed", "horizon"])
+            .value.mean()
+            for judged in (False, True)
+        }
+        self._refs = {e: self._references(e) for e in self.entries}
 
     def _rows(self):
         for g, group in enumerate(self.entries):
-            head = (g, group.label, group.dataset, group.iterations)
             gone = self.untrained.get(group.dataset, set())
             for run in group.runs:
                 for checkpoint, by_protocol in run["results"].items():
                     for protocol, result in by_protocol.items():
+                        key = (g, group.label, group.dataset, group.iterations, run["seed"])
+                        key += (run["path"], protocol, checkpoint)
                         for t in result["tables"]:
-                            key = (*head, run["seed"], run["path"], protocol, checkpoint)
                             for action in t["actions"]:
                                 values = t["values"].get(action, {})
                                 tail = (t["absent"].get(action, ""), action not in gone)
@@ -178,17 +145,21 @@ class Results:
     def actions(self, group: Group, judged: bool = True) -> list[str]:
         """The evaluated actions; judged: those this copy has training files of."""
         gone = self.untrained.get(group.dataset, set()) if judged else set()
-        return [a for a in self.evaluated.get(self._g[id(group)], []) if a not in gone]
+        return [a for a in self.evaluated.get(self._g[group], []) if a not in gone]
+
+    def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
+        """The seeds' averages grouped by horizon; None where there are none."""
+        try:
+            seeds = self._seeds[judged].loc[(self._g[group], protocol, checkpoint, metric)]
+        except KeyError:
+            return None
+        return seeds.groupby(level="horizon")
 
     def average(self, group, protocol, checkpoint, metric="euler", judged=False) -> dict:
         """{ms: (mean, std, n)} over the seeds of their averages over the evaluated actions
         (judged: those with training files); {} where there is none."""
-        key = (self._g[id(group)], protocol, checkpoint, metric)
-        try:
-            seeds = self._seeds[judged].loc[key].groupby(level="horizon")
-        except KeyError:
-            return {}
-        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in seeds}
+        by_ms = self._by_horizon(group, protocol, checkpoint, metric, judged)
+        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms or ()}
 
     def means(self, group, protocol, checkpoint, judged=False) -> dict[int, float]:
         average = self.average(group, protocol, checkpoint, judged=judged)
@@ -196,30 +167,26 @@ class Results:
 
     def spread(self, group, protocol, checkpoint, judged=False) -> dict[int, float] | None:
         """The largest minus the smallest of the seeds' Euler averages; None for one seed."""
-        try:
-            seeds = self._seeds[judged].loc[(self._g[id(group)], protocol, checkpoint, "euler")]
-        except KeyError:
+        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
+        if by_ms is None or by_ms.size().max() < 2:
             return None
-        by_ms = seeds.groupby(level="horizon")
-        return None if by_ms.size().max() < 2 else (by_ms.max() - by_ms.min()).to_dict()
+        return (by_ms.max() - by_ms.min()).to_dict()
 
-    def references(self, group: Group) -> list[Reference]:
-        """The published references of a group, the model's own paper first: the page's own
-        entry for Li et al.'s ablations, else the one the evaluation printed beside ours, then
-        ALSO_PUBLISHED's; on the dataset they were published for only."""
-        if (g := self._g[id(group)]) in self._references:
-            return self._references[g]
-        ref = EXPERIMENT_PUBLISHED.get(group.run_name, "-")
-        if ref == "-":
-            label = _euler(group).get("published_label") or " "
-            ref = dict(zip(("paper", "method"), label.split(" ", 1), strict=True))
+    def _references(self, group: Group) -> list[Reference]:
+        ref = REFERENCES["experiment_published"].get(group.run_name, "-")
+        if ref == "-":  # the one its evaluation printed beside ours
+            paper, _, method = (_euler(group).get("published_label") or "").partition(" ")
+            ref = {"paper": paper, "method": method}
         published, key = published_for(ref, group.dataset)
         refs = [Reference(key, published)] if published else []
-        for also in ALSO_PUBLISHED.get((key, group.dataset), []):
+        for also in REFERENCES["also_published"].get(f"{key} {group.dataset}", []):
             values, other = published_for(also, group.dataset)
             refs += [Reference(other, values, also.get("about"))] if values else []
-        self._references[g] = refs
         return refs
+
+    def references(self, group: Group) -> list[Reference]:
+        """Its published references on its dataset, the model's own paper first."""
+        return self._refs[group]
 
     def same_set(self, group: Group, reference: Reference) -> dict[int, float]:
         """The reference's average over the judged actions."""
@@ -228,20 +195,19 @@ class Results:
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
         """{checkpoint: horizons where its judged average is beyond `target` of the reference's
         same-set average, at the printed precision}."""
-        same, out = self.same_set(group, reference), {}
-        for s in SELECTIONS:
-            ours = self.means(group, protocol, s, judged=True)
-            out[s] = [
+        same = self.same_set(group, reference)
+        ours = {s: self.means(group, protocol, s, judged=True) for s in SELECTIONS}
+        return {
+            s: [
                 ms
                 for ms in HORIZONS
-                if ms in same and ms in ours and abs(printed_gap(ours[ms], same[ms])) > target
+                if ms in same and ms in ours[s] and abs(printed_gap(ours[s][ms], same[ms])) > target
             ]
-        return out
+            for s in SELECTIONS
+        }
 
     def reference(self, group: Group) -> tuple[Reference | None, str]:
-        """The reference a group is judged against and why: the model's own paper, unless its
-        same-set average includes a known slip of the paper and another's does not; (None,
-        why) where no reference has a same-set average."""
+        """The reference a group is judged against, and why that one."""
         refs, actions = self.references(group), self.actions(group)
         if not (usable := [r for r in refs if self.same_set(group, r)]):
             return None, "its paper prints an average only"
@@ -252,8 +218,7 @@ class Results:
         return usable[0], "the only published source" if len(refs) == 1 else "the model's own paper"
 
     def judge(self, group: Group, protocol: str, target: float | None) -> Judgement:
-        refs = self.references(group)
-        if not refs or target is None:
+        if not (refs := self.references(group)) or target is None:
             return Judgement("-")
         chosen, why = self.reference(group)
         if chosen is None:
@@ -263,8 +228,7 @@ class Results:
 
     def validation_means(self, group: Group, protocol: str) -> dict[int, dict[int, float]]:
         """{iterations: {ms: mean over seeds}} of the average Euler error at the validations
-        every seed made (their TensorBoard curves); {} when a run has none or validated on
-        another protocol."""
+        every seed made; {} when a run has none or validated on another protocol."""
         curves = [r.get("validations") or {} for r in group.runs]
         protocols = {r["config"]["data"].get("eval_protocol", "srnn") for r in group.runs}
         if not all(curves) or protocols != {protocol}:
@@ -276,7 +240,7 @@ class Results:
         return out
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
-        """Where a judged row misses: the actions that carry the largest gap, the seed spread
+        """Where a judged row misses most: the actions that carry the gap, the seed spread
         against it, and what was compared with the reference code."""
         ref, actions = judgement.reference, self.actions(group)
         same = self.same_set(group, ref)
@@ -287,22 +251,25 @@ class Results:
         }
         (selection, ms), gap = max(gaps.items(), key=lambda kv: abs(kv[1]))
         f = self.frame
-        f = f[(f.g == self._g[id(group)]) & (f.protocol == protocol) & (f.metric == "euler")]
+        f = f[(f.g == self._g[group]) & (f.protocol == protocol) & (f.metric == "euler")]
         cells = f[(f.checkpoint == selection) & (f.horizon == ms)].groupby("action").value.mean()
-        top = sorted(
-            ((a, cells[a] - ref.published[a][ms]) for a in actions), key=lambda kv: -abs(kv[1])
-        )[:3]
+        top = [(a, cells[a] - ref.published[a][ms]) for a in actions]
+        top = ", ".join(f"{a} {signed(v)}" for a, v in sorted(top, key=lambda kv: -abs(kv[1]))[:3])
         text = (
             f"{group.label} ({group.iterations:,} iterations) misses most at {ms} ms ({selection} "
             f"checkpoint): {signed(gap)} against {ref.name}'s {same[ms]:.2f}, the mean of the "
-            f"{len(actions)} actions' gaps, the largest "
-            + ", ".join(f"{a} {signed(v)}" for a, v in top)
-            + "."
+            f"{len(actions)} actions' gaps, the largest {top}."
         )
-        if spread := self.spread(group, protocol, selection, judged=True):
+        if (spread := self.spread(group, protocol, selection, judged=True)) is not None:
             size = "larger" if spread[ms] > abs(gap) else "smaller"
             text += f" The seed spread there is {spread[ms]:.2f} ({len(group.runs)} seeds), "
             text += f"{size} than the gap."
         else:
             text += " One seed: no spread to weigh the gap against."
         return text + (f" {checked}." if checked else "")
+
+
+def _euler(group: Group) -> dict:
+    """The first run's first Euler table."""
+    first = next(iter(next(iter(group.runs[0]["results"].values())).values()))
+    return next(t for t in first["tables"] if t["metric"] == "euler")

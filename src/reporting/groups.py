@@ -1,7 +1,7 @@
-"""Grouping runs into the page's rows: runs of one experiment (run_name), dataset and
-configuration differ only in their seed. Two runs with the same configuration and seed (a run
-and a sweep job of the same settings, a copy, the earlier segments of a resumed run) are one
-seed: one is kept, and the group says which, and whether each other is a copy or a segment.
+"""The page's rows: runs of one experiment (run_name), dataset and configuration, which differ
+only in their seed. Runs of one configuration and seed (a run and a sweep job, a copy, the
+earlier segments of a resumed run) are one seed: the longest-trained is kept, the group says
+whether each other is a copy or a segment.
 """
 
 from __future__ import annotations
@@ -16,16 +16,13 @@ from src.lit.resume import COMPUTES
 # Config keys that do not make two runs different experiments: the seed, where files live,
 # the device, how often files are written or progress printed, torch.compile (its dropout
 # draws other masks than eager, like another seed), and where a resumed run came from.
-IGNORED_KEYS = set(
-    "seed data.seed ckpt_path resume checkpoint_every media_every progress_every_s "
-    "task_name".split()
-)
+IGNORED_KEYS = "seed data.seed ckpt_path resume checkpoint_every media_every progress_every_s "
+IGNORED_KEYS = set((IGNORED_KEYS + "task_name").split())
 IGNORED_PREFIXES = tuple(
     "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive data.num_workers "
     "data.eval_batch_size".split()
 )
-# The budget: its own column of every table, not part of a row's label.
-BUDGET_KEYS = {"iterations", "val_every"}
+BUDGET_KEYS = {"iterations", "val_every"}  # the budget has a column of its own
 # Settings named in words in a label when on (the paper's behaviour is off); any other setting
 # that tells two groups of one experiment apart is shown as `leaf=value`.
 SETTING_NAMES = {
@@ -49,8 +46,8 @@ def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
 
 
 def identity(config: dict) -> dict[str, str]:
-    """What makes a run the experiment it is: its config less seed, paths, device, logging
-    (trainer keys that change the numbers, such as precision, stay)."""
+    """The config less seed, paths, device, logging (trainer keys that change the numbers,
+    such as precision, stay)."""
     return {
         k: v
         for k, v in _flatten(config).items()
@@ -64,9 +61,8 @@ def seed_of(run: dict):
 
 @dataclass(eq=False)  # a group is itself: hashed and compared by identity
 class Group:
-    """Runs of one experiment on one dataset at one budget that differ only in their seed.
-    label: short, for tables; settings: the config values (budget aside) that tell it from the
-    other groups of its experiment; left_out: why runs identical to a kept one count once."""
+    """Runs of one experiment, dataset and budget differing only in their seed. settings: what
+    tells it from its experiment's other groups; left_out: why identical runs count once."""
 
     label: str
     run_name: str
@@ -89,6 +85,64 @@ class Group:
         return self.run_name in ABLATIONS
 
 
+def _segments_before(run: dict, members: list[dict]) -> set[str]:
+    """The folders of the runs a resumed run continues (its absolute ckpt_path's, and so on)."""
+    by_folder = {m["folder"]: m for m in members if m.get("folder")}
+    found: set[str] = set()
+    while (ckpt := run["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
+        folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
+        stop = folder in found or folder not in by_folder
+        found.add(folder)
+        if stop:
+            break
+        run = by_folder[folder]
+    return found
+
+
+def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
+    """One run per seed (the longest-trained, then a finished one, then the first given), a
+    resumed run's validation curve joined over its segments, and a line per run left out."""
+    rank = lambda r: (r.get("iterations") or 0, bool(r.get("finished", True)))  # noqa: E731
+    kept: dict = {}
+    for run in members:
+        if rank(run) > rank(kept.setdefault(seed_of(run), run)):
+            kept[seed_of(run)] = run
+    lines = []
+    for seed, run in kept.items():
+        segments = _segments_before(run, members)
+        earlier = [m for m in members if m.get("folder") in segments]
+        if earlier and "validations" in run:  # each segment's folder logged its own part
+            curve = {
+                i: e for part in [*earlier, run] for i, e in (part.get("validations") or {}).items()
+            }
+            run["validations"] = dict(sorted(curve.items()))
+        path, n = f"`{run.get('path')}`", lambda r: f"{r.get('iterations'):,}"
+        for other in (m for m in members if seed_of(m) == seed and m is not run):
+            if other.get("folder") in segments:
+                lines.append(
+                    f"seed {seed}: `{other.get('path')}` ({n(other)} iterations) is an earlier "
+                    f"segment of the resumed run {path} ({n(run)}), which was kept"
+                )
+                continue
+            if rank(run)[0] != rank(other)[0]:
+                why = f"it trained {n(run)} iterations, that one {n(other)}"
+            elif rank(run) != rank(other):
+                why = "that one has no summary.yaml (unfinished)"
+            else:
+                why = "given first"
+            lines.append(
+                f"seed {seed}: `{other.get('path')}` has the same configuration and seed as "
+                f"{path}, which was kept ({why}); they count as one seed"
+            )
+    return [r for r in members if kept[seed_of(r)] is r], lines
+
+
+def _seed_order(seed) -> tuple:
+    """Numbers first, in numeric order, then anything else by its text."""
+    number = isinstance(seed, (int, float)) and not isinstance(seed, bool)
+    return (0, seed, "") if number else (1, 0, str(seed))
+
+
 def _short_label(run_name: str, settings: dict) -> str:
     words = []
     for key, value in settings.items():
@@ -101,91 +155,21 @@ def _short_label(run_name: str, settings: dict) -> str:
     return ", ".join([run_name, *words])
 
 
-def _segments_before(run: dict, members: list[dict]) -> set[str]:
-    """The folders of the runs a resumed run continues: the one its ckpt_path lies in, the one
-    that one resumed from, and so on (an absolute ckpt_path only: a relative one cannot be
-    placed)."""
-    by_folder = {m["folder"]: m for m in members if m.get("folder")}
-    found: set[str] = set()
-    while (ckpt := run["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
-        folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
-        if folder in found or folder not in by_folder:
-            found.add(folder)
-            break
-        found.add(folder)
-        run = by_folder[folder]
-    return found
-
-
-def _rank(run: dict) -> tuple[int, bool]:
-    return (run.get("iterations") or 0, bool(run.get("finished", True)))
-
-
-def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
-    """One run per seed, the one that trained longest, then a finished one, then the first
-    given; a resumed run's validation curve joined over its segments; and a line per run left
-    out saying which was kept and whether it is an earlier segment of it or a copy."""
-    kept: dict = {}
-    for run in members:
-        other = kept.setdefault(seed_of(run), run)
-        if _rank(run) > _rank(other):
-            kept[seed_of(run)] = run
-    lines = []
-    for seed, run in kept.items():
-        segments = _segments_before(run, members)
-        earlier = [m for m in members if m.get("folder") in segments]
-        if earlier and "validations" in run:  # each segment's folder logged its own part
-            curve: dict = {}
-            for part in [*earlier, run]:
-                curve.update(part.get("validations") or {})
-            run["validations"] = dict(sorted(curve.items()))
-        for other in (m for m in members if seed_of(m) == seed and m is not run):
-            if other.get("folder") in segments:
-                lines.append(
-                    f"seed {seed}: `{other.get('path')}` ({other.get('iterations'):,} "
-                    f"iterations) is an earlier segment of the resumed run `{run.get('path')}` "
-                    f"({run.get('iterations'):,}), which was kept"
-                )
-                continue
-            if _rank(run)[0] != _rank(other)[0]:
-                why = f"it trained {run.get('iterations'):,} iterations, that one "
-                why += f"{other.get('iterations'):,}"
-            else:
-                why = (
-                    "that one has no summary.yaml (unfinished)"
-                    if _rank(run) != _rank(other)
-                    else "given first"
-                )
-            lines.append(
-                f"seed {seed}: `{other.get('path')}` has the same configuration and seed as "
-                f"`{run.get('path')}`, which was kept ({why}); they count as one seed"
-            )
-    return [r for r in members if kept[seed_of(r)] is r], lines
-
-
-def _seed_order(seed) -> tuple:
-    """Numbers first, in numeric order, then anything else by its text."""
-    number = isinstance(seed, (int, float)) and not isinstance(seed, bool)
-    return (0, float(seed), "") if number else (1, 0.0, str(seed))
-
-
 def group_runs(runs: list[dict]) -> list[Group]:
-    """Group run dicts by run_name, dataset and configuration, in the page's order: H3.6M's
-    rows, then CMU's, then other data (both papers' order), Li et al.'s ablations last, an
-    experiment's budgets together, the longest first; otherwise in order of appearance."""
+    """Groups in the page's order: H3.6M, CMU, other data (the papers' order), Li et al.'s
+    ablations last, an experiment's budgets together, the longest first; else as given."""
     by_key: dict[tuple, list[dict]] = {}
     for run in runs:
         config = run["config"]
         ident = tuple(sorted(identity(config).items()))
         by_key.setdefault((config.get("run_name"), config["data"]["name"], ident), []).append(run)
-    groups = []
+    groups, first = [], {}
     for (run_name, dataset, ident), members in by_key.items():
         siblings = [dict(k[2]) for k in by_key if k[:2] == (run_name, dataset)]
-        keys = sorted({k for s in siblings for k in s} - BUDGET_KEYS)
         mine = dict(ident)
         settings = {
             k: json.loads(mine.get(k, "null"))
-            for k in keys
+            for k in sorted({k for s in siblings for k in s} - BUDGET_KEYS)
             if len({s.get(k, "null") for s in siblings}) > 1
         }
         kept, left_out = _keep_one_per_seed(members)
@@ -195,13 +179,11 @@ def group_runs(runs: list[dict]) -> list[Group]:
         group = Group(label, str(run_name), str(dataset), int(iterations), kept, settings)
         group.left_out, group.ident = left_out, mine
         groups.append(group)
+        first.setdefault((group.run_name, group.dataset), len(first))
     for group in groups:  # short labels that collide fall back to the full ones
         key = (group.label, group.dataset, group.iterations)
         if sum((g.label, g.dataset, g.iterations) == key for g in groups) > 1:
             group.label = group.full_label
-    first = {}
-    for k, g in enumerate(groups):
-        first.setdefault((g.run_name, g.dataset), k)
     rank = {"h36m": 0, "cmu": 1}
 
     def order(g: Group) -> tuple:
@@ -211,9 +193,8 @@ def group_runs(runs: list[dict]) -> list[Group]:
 
 
 def parse_notes(items: list[str], groups: list[Group]) -> dict[str, str]:
-    """{label: text} from `LABEL=TEXT` items; LABEL is a group's short or full label. A label
-    may itself hold '=' ("m (data.future_len=10)"): the longest label the item starts with
-    wins."""
+    """{label: text} of `LABEL=TEXT` items, LABEL a group's short or full label; as one may
+    hold '=' ("m (data.future_len=10)"), the longest label the item starts with wins."""
     names = {g.full_label: g.label for g in groups} | {g.label: g.label for g in groups}
     notes = {}
     for item in items:

@@ -1,14 +1,11 @@
 """The headline of the results page, also the README's Results block: every trained experiment
 at each budget, ours at the best and last checkpoints with the published same-set averages and
 ours minus them, the verdict, the zero-velocity yardstick, why a row misses; and the figures.
-What the numbers mean is decided in frame.py.
 """
 
 from __future__ import annotations
 
 import datetime as dt
-
-import pandas as pd
 
 from src.plots import Curve, line_panels
 from src.reporting.frame import (
@@ -16,12 +13,12 @@ from src.reporting.frame import (
     PROTOCOLS,
     SELECTIONS,
     Results,
+    ms_list,
     printed_gap,
     signed,
     stat,
 )
-from src.reporting.groups import Group
-from src.reporting.published import REFERENCE_CODE_CHECKED, known_slips
+from src.reporting.published import REFERENCES, known_slips
 from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
 
 SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
@@ -41,69 +38,38 @@ def span(values) -> str:
     return "-" if not known else f"{known[0]:,}" + (f"–{known[-1]:,}" if known[1:] else "")
 
 
-def _ms(horizons: list[int]) -> str:
-    return ", ".join(map(str, horizons)) + " ms"
-
-
-def _untrained(results: Results, group: Group) -> list[str]:
-    judged = results.actions(group)
-    return [a for a in results.actions(group, judged=False) if a not in judged]
-
-
-def headline_groups(results: Results) -> list[Group]:
+def headline_groups(results: Results) -> list:
     """All but Li et al.'s ablations, which have their section (all when nothing else)."""
     return [g for g in results.groups if not g.ablation] or results.groups
 
 
 def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
-    """{group: judgement} of each of `groups` that gets a verdict: an experiment's longest
-    budget (an experiment's groups come longest first)."""
-    judged = {}
-    for group in groups:
-        if all((g.label, g.dataset) != (group.label, group.dataset) for g in judged):
-            judged[group] = results.judge(group, protocol, targets.get(group.dataset))
-    return judged
-
-
-def _verdict(results: Results, group: Group, judgement, mark) -> str:
-    if judgement is None:
-        return "shorter budget"
-    if judgement.status == "not judged":
-        return f"not judged ({judgement.why})"
-    if (ref := judgement.reference) is None:
-        return judgement.status
-    text = f"**{judgement.status}**, judged against {ref.name}"
-    if len(results.references(group)) > 1:
-        about = f" ({ref.about})" if ref.about else ""
-        text += mark(f"{group.label}: judged against {ref.name}{about}: {judgement.why}.")
-    return text
+    """{group: judgement} of each experiment's longest budget (its groups come longest first)."""
+    first = {(g.label, g.dataset): g for g in reversed(groups)}.values()
+    return {g: results.judge(g, protocol, targets.get(g.dataset)) for g in groups if g in first}
 
 
 def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
-    """(label, cells, verdict) of a reference: its same-set average with ours minus it (best,
+    """(label, cells, verdict): the reference's same-set average with ours minus it (best,
     last), and where that is beyond the target."""
     actions, same = results.actions(group), results.same_set(group, ref)
     if not same:
-        printed = ref.published.get(AVERAGE, {})
-        cells = [fmt(printed.get(ms)) for ms in HORIZONS]
+        cells = [fmt(ref.published.get(AVERAGE, {}).get(ms)) for ms in HORIZONS]
         return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
     name = f"{ref.name}, {len(actions)} actions"
     if slips := known_slips(ref.key, actions):
         name += f" incl. slips ({', '.join(slips)})"
     ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
-    cells = ["-"] * len(HORIZONS)
-    for k, ms in enumerate(HORIZONS):
-        if ms in same:
-            gaps = ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)
-            cells[k] = f"{same[ms]:.2f} ({gaps})"
+    gaps = lambda ms: ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)  # noqa: E731
+    cells = [f"{same[ms]:.2f} ({gaps(ms)})" if ms in same else "-" for ms in HORIZONS]
     if target is None:
         return name, cells, "-"
     missed = results.missed(group, protocol, ref, target)
     if not any(missed.values()):
         return name, cells, f"within {target:.2f}"
     if missed["best"] == missed["last"]:
-        return name, cells, f"beyond {target:.2f} at {_ms(missed['best'])}"
-    where = "; ".join(f"{s} {_ms(missed[s])}" for s in SELECTIONS if missed[s])
+        return name, cells, f"beyond {target:.2f} at {ms_list(missed['best'])}"
+    where = "; ".join(f"{s} {ms_list(missed[s])}" for s in SELECTIONS if missed[s])
     return name, cells, f"beyond {target:.2f}: {where}"
 
 
@@ -116,46 +82,53 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             notes.append(text)
         return str(notes.index(text) + 1).translate(SUPERSCRIPTS)
 
-    def add(experiment="", data="", iterations="", row="", n="", cells=(), verdict=""):
-        rows.append([experiment, data, iterations, row, n, *cells, verdict])
-
     groups = headline_groups(results)
     judged = verdicts(results, groups, protocol, targets)
     for k, group in enumerate(groups):
         label, n, budget = group.label, str(len(group.runs)), f"{group.iterations:,}"
-        if group.settings:
-            label += mark(
-                f"{label}: " + ", ".join(f"{a}={v}" for a, v in group.settings.items()) + "."
-            )
-        if untrained := _untrained(results, group):
-            everything = len(results.actions(group, judged=False))
+        if settings := ", ".join(f"{a}={v}" for a, v in group.settings.items()):
+            label += mark(f"{label}: {settings}.")
+        everything, judged_actions = results.actions(group, False), results.actions(group)
+        if untrained := [a for a in everything if a not in judged_actions]:
             label += mark(
                 f"{group.label}: {', '.join(untrained)} has no training files in this copy: left "
-                f"out of the average the verdict judges ({everything - len(untrained)} actions, "
-                f"the published one likewise), shown in the per-action tables and the rows "
-                f"'all {everything} actions'."
+                f"out of the average the verdict judges ({len(judged_actions)} actions, the "
+                f"published one likewise), shown in the per-action tables and the rows 'all "
+                f"{len(everything)} actions'."
             )
-        verdict = _verdict(results, group, judged.get(group), mark)
+        j, verdict = judged.get(group), "shorter budget"
+        if j is not None and j.status == "not judged":
+            verdict = f"not judged ({j.why})"
+        elif j is not None and j.reference is None:
+            verdict = j.status
+        elif j is not None:
+            verdict = f"**{j.status}**, judged against {j.reference.name}"
+            if len(results.references(group)) > 1:
+                about = f" ({j.reference.about})" if j.reference.about else ""
+                verdict += mark(
+                    f"{group.label}: judged against {j.reference.name}{about}: {j.why}."
+                )
         for s in SELECTIONS:
-            best, cells = s == "best", stat_cells(results.average(group, protocol, s, judged=True))
-            first = (label, group.dataset) if best else ("", "")
-            add(*first, budget, f"ours, {s}", n, cells, verdict if best else "")
+            first = (label, group.dataset) if s == "best" else ("", "")
+            cells = stat_cells(results.average(group, protocol, s, judged=True))
+            rows.append([*first, budget, f"ours, {s}", n, *cells, verdict if s == "best" else ""])
         for s in SELECTIONS if untrained else ():
             cells = stat_cells(results.average(group, protocol, s))
-            add("", "", budget, f"ours, {s}, all {everything} actions", n, cells)
+            rows.append(
+                ["", "", budget, f"ours, {s}, all {len(everything)} actions", n, *cells, ""]
+            )
         for ref in results.references(group):
             name, cells, text = _reference_row(
                 results, group, ref, protocol, targets.get(group.dataset)
             )
-            add(row=name, cells=cells, verdict=text)
+            rows.append(["", "", "", name, "", *cells, text])
         zero = [
             b for b in results.baselines if (b.label, b.dataset) == ("zero_velocity", group.dataset)
         ]
         if zero and (k + 1 == len(groups) or groups[k + 1].dataset != group.dataset):
             cells = stat_cells(results.average(zero[0], protocol, "-", judged=True))
             what = f"baseline, {len(results.actions(zero[0]))} actions"
-            add("zero-velocity", group.dataset, "-", what, "-", cells, "the yardstick")
-    columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
+            rows.append(["zero-velocity", group.dataset, "-", what, "-", *cells, "the yardstick"])
     footnotes = [f"{str(k + 1).translate(SUPERSCRIPTS)} {t}" for k, t in enumerate(notes)]
     ablations = [g for g in results.groups if g.ablation]
     if link and ablations and len(groups) < len(results.groups):
@@ -164,17 +137,18 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) are compared "
             f"with li2018_h36m, claim by claim, under [Ablations]({link})."
         )
+    checked = REFERENCES["reference_code_checked"]
     why = [
-        results.diagnosis(group, protocol, j, REFERENCE_CODE_CHECKED.get(group.run_name))
+        results.diagnosis(group, protocol, j, checked.get(group.run_name))
         for group, j in judged.items()
         if j.status == "misses"
     ]
-    return markdown(pd.DataFrame(rows, columns=columns)), footnotes, why
+    columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
+    return markdown(rows, columns), footnotes, why
 
 
 def headline(results, protocol, targets, figures, link, intro, diagnosis=True) -> list[str]:
-    """The headline's lines: intro, legend, table, footnotes, why rows miss (the page's, not
-    the README's), figures."""
+    """intro, legend, table, footnotes, why rows miss (diagnosis: the page's), figures."""
     goal = ", ".join(f"{t:.2f} rad on {d}" for d, t in targets.items())
     table, notes, why = headline_table(results, protocol, targets, link)
     legend = (
@@ -190,7 +164,6 @@ def headline(results, protocol, targets, figures, link, intro, diagnosis=True) -
 
 
 def readme_block(results, protocol, commit, targets, figure=None, page="docs/results.md") -> str:
-    """The README's Results block: the page's headline, linking to the page for the rest."""
     intro = (
         f"Generated by `python -m src.report` on {dt.date.today()} at commit {commit}: average "
         f"Euler error (rad), {PROTOCOLS.get(protocol, protocol)}; the rest in [{page}]({page})"
@@ -203,20 +176,17 @@ def readme_block(results, protocol, commit, targets, figure=None, page="docs/res
 
 def figures(results: Results, protocol: str):
     """(error against horizon, a panel per dataset: ours best with its ± band and last dotted,
-    each published same-set average dashed; mean validation error at 400 and 1000 ms against
-    iteration, a panel per headline experiment with curves, the published values as lines)."""
+    the published same-set averages dashed; validation error at 400 and 1000 ms against
+    iteration, a panel per headline experiment, the published values as lines)."""
     horizon: dict[str, list[Curve]] = {}
     validation = []
     for k, group in enumerate(headline_groups(results)):
         name, panel = f"{group.label}, {group.iterations:,}", horizon.setdefault(group.dataset, [])
         for s, style in (("best", "-"), ("last", ":")):
-            avg = results.average(group, protocol, s, judged=True)
-            std = {ms: v[1] for ms, v in avg.items() if v[2] > 1} or None
-            panel.append(
-                Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg.items()}, std, k, style)
-            )
-        refs = results.references(group)
-        for j, ref in enumerate(refs):
+            avg = results.average(group, protocol, s, judged=True).items()
+            std = {ms: v[1] for ms, v in avg if v[2] > 1} or None
+            panel.append(Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg}, std, k, style))
+        for j, ref in enumerate(results.references(group)):
             if same := results.same_set(group, ref):
                 panel.append(Curve(ref.name, same, None, k, "-." if j else "--"))
         if len(curve := results.validation_means(group, protocol)) > 1:

@@ -1,35 +1,35 @@
-"""The results page (docs/results.md) and its per-action CSV files: the headline (headline.py)
-first, then the budget, how to read the numbers, the ablation claims (claims.py), provenance,
-the averages of each protocol and metric, the CSVs and the command that made the page.
+"""The results page (docs/results.md), its per-action CSV files and figures, and the README's
+Results block: the headline (headline.py), the budget, how to read the numbers, the ablation
+claims (claims.py), provenance, the averages of each protocol and metric, the CSVs, the command.
+What the numbers mean is decided in frame.py.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import os
 from pathlib import Path
-
-import pandas as pd
 
 from src.lit.factory import ConfigError
 from src.reporting.claims import claims_section
-from src.reporting.frame import (
-    HORIZONS,
-    PROTOCOLS,
-    SELECTION_LABELS,
-    SELECTIONS,
-    Results,
-    missing_of,
-    training_files,
+from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTION_LABELS, SELECTIONS, Results
+from src.reporting.headline import (
+    COLS,
+    figures,
+    headline,
+    headline_groups,
+    readme_block,
+    span,
+    stat_cells,
+    verdicts,
 )
-from src.reporting.groups import Group
-from src.reporting.headline import COLS, headline, headline_groups, span, stat_cells, verdicts
 from src.reporting.published import known_slips
 from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
 
 
 def replace_block(path: Path, name: str, text: str | None = None) -> None:
-    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`;
-    text=None only checks that the markers are there."""
+    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`
+    (text=None: only check that the markers are there)."""
     start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
     content = Path(path).read_text() if Path(path).is_file() else ""
     if start not in content or end not in content.split(start, 1)[-1]:
@@ -40,8 +40,7 @@ def replace_block(path: Path, name: str, text: str | None = None) -> None:
 
 
 def _wall_time(run: dict) -> str:
-    """Training time over all segments; for a run resumed before src.train kept the total, the
-    last segment's, said as such."""
+    """Over all segments; of a run resumed before src.train kept the total, the last one's."""
     if (total := run.get("train_time_s")) is not None:
         return f"{total / 60:.1f} min"
     if (wall := run.get("wall_time_s")) is None:
@@ -54,25 +53,23 @@ def provenance_table(results: Results) -> str:
     for group in results.entries:
         trained = group.kind == "trained"
         for r in group.runs:
-            missing = len(r.get("missing_files") or [])
-            rows.append(
-                [
-                    group.label if trained else f"{group.label} ({group.kind})",
-                    str(r["seed"]) if trained else "-",
-                    f"`{r['path']}`" if trained else "-",
-                    r.get("commit") or "-",
-                    f"{group.iterations:,}" if trained else "-",
-                    span([r["iterations_of"]["best"]]) if trained else "-",
-                    _wall_time(r) if trained else "-",
-                    r.get("device") or "-",
-                    r.get("archive_sha256", "-"),
-                    f"{missing} (see above)" if missing else "none",
-                    "; ".join(r.get("notes", [])) or "-",
+            missing, commit = len(r.get("missing_files") or []), r.get("commit") or "-"
+            row = [f"{group.label} ({group.kind})", "-", "-", commit, "-", "-", "-"]
+            if trained:
+                row = [
+                    group.label,
+                    str(r["seed"]),
+                    f"`{r['path']}`",
+                    commit,
+                    f"{group.iterations:,}",
                 ]
-            )
+                row += [span([r["iterations_of"]["best"]]), _wall_time(r)]
+            row += [r.get("device") or "-", r.get("archive_sha256", "-")]
+            row += [f"{missing} (see above)" if missing else "none"]
+            rows.append([*row, "; ".join(r.get("notes", [])) or "-"])
     columns = ["experiment", "seed", "run folder", "commit", "iterations", "best at"]
     columns += ["wall time", "device", "data archive (sha256)", "missing files", "notes"]
-    return markdown(pd.DataFrame(rows, columns=columns))
+    return markdown(rows, columns)
 
 
 def averages_table(results: Results, protocol: str, metric: str, published: bool) -> str:
@@ -84,11 +81,9 @@ def averages_table(results: Results, protocol: str, metric: str, published: bool
         best = f"{span(r.get('iterations_of', {}).get('best') for r in group.runs)} of {last}"
         for s in SELECTIONS if trained else ("-",):
             n, budget = str(len(group.runs)), best if s == "best" else last
-            n, budget = (n, budget) if trained else ("-", "-")
-            cells = stat_cells(results.average(group, protocol, s, metric), decimals)
-            rows.append(
-                [group.label, group.dataset, SELECTION_LABELS.get(s, "-"), n, budget, *cells]
-            )
+            row = [group.label, group.dataset, SELECTION_LABELS.get(s, "-")]
+            row += [n, budget] if trained else ["-", "-"]
+            rows.append(row + stat_cells(results.average(group, protocol, s, metric), decimals))
         evaluated = results.actions(group, judged=False)
         for ref in results.references(group) if published and metric == "euler" else ():
             slips = known_slips(ref.key, evaluated)
@@ -100,28 +95,23 @@ def averages_table(results: Results, protocol: str, metric: str, published: bool
                 (f"same {len(evaluated)} actions{flag}", same),
                 (f"as printed (all {n or 'of its'} actions)", printed),
             ):
-                if values:
-                    label = f"{group.label}: published ({ref.key}), {what}"
-                    cells = [fmt(values.get(ms)) for ms in HORIZONS]
-                    rows.append([label, group.dataset, "paper", "-", "paper", *cells])
-    columns = ["experiment", "dataset", "checkpoint", "n", "iterations", *COLS]
-    return markdown(pd.DataFrame(rows, columns=columns))
+                label = f"{group.label}: published ({ref.key}), {what}"
+                cells = [fmt(values.get(ms)) for ms in HORIZONS]
+                rows += [[label, group.dataset, "paper", "-", "paper", *cells]] if values else []
+    return markdown(rows, ["experiment", "dataset", "checkpoint", "n", "iterations", *COLS])
 
 
 def per_action_csv(results: Results, protocol: str, metric: str) -> str:
-    """Every group's per-action table of one protocol and metric as CSV: mean and std (n - 1)
-    over the seeds and the published value at each horizon; a note where an action is absent
-    or has no training files in this copy."""
+    """Every group's per-action table as CSV: mean and std (n - 1) over the seeds and the
+    published value at each horizon; a note where an action is absent or untrained."""
     f = results.frame[(results.frame.protocol == protocol) & (results.frame.metric == metric)]
     keys = ["g", "checkpoint", "action"]
     stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std"])
     rows = f.groupby(keys, sort=False)
     out = rows.seed.nunique().rename("n").to_frame()
-    gone = "no training files in this copy"
-    out["note"] = [
-        a or (gone if not t else "")
-        for a, t in zip(rows.absent.first(), rows.trained.first(), strict=True)
-    ]
+    out["note"] = rows.absent.first().where(
+        rows.absent.first().astype(bool) | rows.trained.first(), "no training files in this copy"
+    )
     for ms in HORIZONS:
         if ms in stats.index.get_level_values("horizon"):
             cells = stats.xs(ms, level="horizon")
@@ -130,11 +120,10 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
     if metric == "euler":
         refs = [results.references(results.entries[g])[:1] for g in out.g]
         for ms in HORIZONS:
-            pub = [
-                r[0].published.get(a, {}).get(ms) if r else None
-                for r, a in zip(refs, out.action, strict=True)
+            pub = zip(refs, out.action, strict=True)
+            out[f"{ms} ms published"] = [
+                r[0].published.get(a, {}).get(ms) if r else None for r, a in pub
             ]
-            out[f"{ms} ms published"] = pub
     groups = [results.entries[g] for g in out.pop("g")]
     out.insert(0, "iterations", [g.iterations if g.kind == "trained" else "" for g in groups])
     out.insert(0, "data", [g.dataset for g in groups])
@@ -143,7 +132,6 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
 
 
 def reading(results: Results) -> list[str]:
-    """How to read the numbers: each row's seeds, runs counted once, checkpoints, published."""
     seeds = "; ".join(
         f"{g.label} ({g.dataset}, {g.iterations:,} iterations): {len(g.runs)} seed"
         f"{'s' * (len(g.runs) != 1)} ({', '.join(str(r['seed']) for r in g.runs)})"
@@ -168,9 +156,8 @@ def reading(results: Results) -> list[str]:
     ]
 
 
-def _validation_text(results: Results, group: Group, protocol: str, judgement) -> str:
-    """A row that misses at each of its validations, beside the published value: whether the
-    miss is one checkpoint's or the whole run's."""
+def _validation_text(results: Results, group, protocol: str, judgement) -> str:
+    """A missing row at each of its validations: is the miss one checkpoint's or the run's?"""
     if not (means := results.validation_means(group, protocol)):
         return ""
     same, steps = results.same_set(group, judgement.reference), list(means)
@@ -189,11 +176,10 @@ def _validation_text(results: Results, group: Group, protocol: str, judgement) -
 
 
 def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict) -> list[str]:
-    """The reproduction target and the rows that miss it, with the notes saying why; that every
-    row meets it only where some row was judged."""
+    """The target and the rows that miss it, with the notes saying why; that every row meets
+    it only where some row was judged."""
     judged = verdicts(results, results.groups, protocol, targets)
-    judged = {g: j for g, j in judged.items() if j.status != "-"}
-    if not judged:
+    if not (judged := {g: j for g, j in judged.items() if j.status != "-"}):
         return []
     goal = ", ".join(f"{d} {t:.2f}" for d, t in targets.items())
     text = (
@@ -218,8 +204,7 @@ def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict
 
 
 def data_lines(results: Results) -> list[str]:
-    """What this data copy lacks (the files, the training files of each dataset's evaluated
-    actions), and the published values that are slips of the papers."""
+    """What this data copy lacks, and the published values that are slips of the papers."""
     everyone = [r for g in results.entries for r in g.runs]
     missing = sorted({m for r in everyone for m in r.get("missing_files") or []})
     lines = [
@@ -229,9 +214,8 @@ def data_lines(results: Results) -> list[str]:
     ] * bool(missing)
     shown = set()
     for group in headline_groups(results):
-        evaluated = results.actions(group, judged=False)
-        files = training_files(group.runs[0]["config"], evaluated, missing_of(group))
-        short = [f"{a} {p} of {n}" for a, (p, n) in files.items() if p < n]
+        evaluated, files = results.actions(group, judged=False), results.files[group].items()
+        short = [f"{a} {p} of {n}" for a, (p, n) in files if p < n and a in evaluated]
         if short and group.dataset not in shown:
             shown.add(group.dataset)
             lines.append(
@@ -252,19 +236,14 @@ def data_lines(results: Results) -> list[str]:
 def build_page(
     results, protocols, command, budget, commit, targets, notes=None, figures=(), tables=None
 ) -> str:
-    """The page's markdown; `figures`: the two figures' file names beside it; `tables`: the
-    folder of the per-action CSV files (<metric>_<protocol>.csv), relative to the page."""
+    """The page; `figures`: the figures' file names, `tables`: the CSVs' folder, beside it."""
     first, where = protocols[0], PROTOCOLS.get(protocols[0], protocols[0])
     intro = (
         f"Generated by `python -m src.report` on {dt.date.today()} at commit {commit} from the "
         "runs under Provenance (the command is at the end); do not edit by hand. Average "
         f"Euler-angle error (radians) over the evaluated actions, {where}."
     )
-    lines = [
-        "# Results",
-        "",
-        *headline(results, first, targets, list(figures), "#ablations", intro),
-    ]
+    lines = ["# Results", "", *headline(results, first, targets, figures, "#ablations", intro)]
     lines += [f"**Budget.** {budget}", ""] if budget else []
     lines += reading(results) + target_paragraph(results, first, targets, notes or {})
     lines += data_lines(results) + claims_section(results, protocols, "Ablations")
@@ -286,3 +265,30 @@ def build_page(
             "",
         ]
     return "\n".join([*lines, "## Command", "", f"`{command}`", ""])
+
+
+def write_page(results, out: Path, protocols, command, budget, commit, targets, notes, readme):
+    """The page at `out`, its figures beside it (<stem>_errors.png, <stem>_validation.png), its
+    CSVs in <stem>/<metric>_<protocol>.csv, its headline into `readme` (None: no README)."""
+    tables = out.with_suffix("")
+    tables.mkdir(parents=True, exist_ok=True)
+    for metric in ("euler", "mpjpe"):
+        for protocol in protocols:
+            (tables / f"{metric}_{protocol}.csv").write_text(
+                per_action_csv(results, protocol, metric)
+            )
+    names = []
+    for figure, kind in zip(figures(results, protocols[0]), ("errors", "validation"), strict=True):
+        names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
+        if figure is not None:
+            figure.savefig(out.with_name(names[-1]))
+    out.write_text(
+        build_page(results, protocols, command, budget, commit, targets, notes, names, tables.name)
+    )
+    if readme:
+        here = readme.resolve().parent
+        figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
+        block = readme_block(
+            results, protocols[0], commit, targets, figure, os.path.relpath(out, here)
+        )
+        replace_block(readme, "results", block)

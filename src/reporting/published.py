@@ -1,19 +1,27 @@
 """The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2),
-and what the results page knows about each experiment's published references.
+and what the results page knows of each experiment's references.
 
-published_results.csv is a byte copy of the project's shared docs/published_results.csv: one
-value per row, `paper,table,dataset,method,action,ms,value`, as printed in the papers (slips
-included, N/A cells omitted); an "average" row is the paper's own, over that table's actions.
-Paper keys "li2018", "martinez2017"; method keys e.g. "conv_s2s" (Li's "Ours"), "rrnn"
-(Martinez's residual model retrained by Li), "zero_velocity", "residual_sup_ma".
+published_results.csv is a byte copy of the shared docs/published_results.csv: one value per
+row, as printed (slips included, N/A cells omitted); an "average" row is the paper's own.
+references.json: the cells the shared docs/published_results.md calls slips of the papers (kept
+as printed, flagged where they enter an average), the references of Li et al.'s ablations
+(Tables 5 and 6 print averages only, Figure 4 no numbers: null), other papers' numbers of the
+same model ("<paper> <method> <dataset>"), what was checked against reference code (the
+shared docs/protocol.md), and the ablation claims (claims.py).
 """
 
 from __future__ import annotations
 
 import functools
+import json
 from importlib import resources
 
 import pandas as pd
+
+DATA = resources.files("src.reporting")
+REFERENCES = json.loads(DATA.joinpath("references.json").read_text())
+PAPERS = REFERENCES["papers"]
+KNOWN_SLIPS = {tuple(k.split(" ")): v for k, v in REFERENCES["slips"].items()}
 
 
 class ReportingError(ValueError):
@@ -23,7 +31,7 @@ class ReportingError(ValueError):
 @functools.cache
 def published_frame() -> pd.DataFrame:
     """Every published cell, one row each: paper, table, dataset, method, action, ms, value."""
-    with resources.files("src.reporting").joinpath("published_results.csv").open() as fh:
+    with DATA.joinpath("published_results.csv").open() as fh:
         return pd.read_csv(fh)
 
 
@@ -35,16 +43,12 @@ def find_published(dataset: str, method: str) -> list[tuple[str, int]]:
 
 
 def published_datasets() -> frozenset[str]:
-    """The datasets the papers published numbers for ("h36m", "cmu")."""
     return frozenset(published_frame().dataset)
 
 
-def published_table(
-    paper: str, table: int | None, dataset: str, method: str
-) -> dict[str, dict[int, float]]:
-    """Published values {action: {ms: value}} of one method in one paper; table=None merges
-    the paper's tables (Li's Tables 1 and 2 cover the 15 H3.6M actions). A cell printed with
-    two values in the merged tables raises: pick the table then."""
+def published_table(paper: str, table: int | None, dataset: str, method: str) -> dict:
+    """{action: {ms: value}} of one method in one paper; table=None merges the paper's tables
+    (Li's Tables 1 and 2 cover the 15 H3.6M actions) and raises where they disagree."""
     f = published_frame()
     rows = f[(f.paper == paper) & (f.dataset == dataset) & (f.method == method)]
     rows = rows if table is None else rows[rows.table == table]
@@ -69,10 +73,9 @@ def published_table(
 
 
 def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
-    """(values {action: {ms: value}}, "<paper> <method>") of a model config's `published` entry
-    ({paper, method[, table]}, or one such entry per dataset) for results on `dataset`;
-    (None, None) where no paper has numbers for it. Synthetic data, in the H3.6M format, never
-    gets H3.6M's numbers: a published value stands only beside results on its own dataset."""
+    """(values, "<paper> <method>") of a model config's `published` entry ({paper, method[,
+    table]}, or one such per dataset) for results on `dataset`; (None, None) where no paper has
+    numbers. Synthetic data, in the H3.6M format, never gets H3.6M's numbers."""
     if not ref or dataset not in published_datasets():
         return None, None
     ref = ref.get(dataset, ref)
@@ -85,64 +88,8 @@ def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | No
     return table, f"{ref['paper']} {ref['method']}"
 
 
-# Cells the shared notes (docs/published_results.md) call slips of the paper, kept as printed:
-# (paper, method) -> {action: why}. A published average that includes one is flagged, not fixed.
-KNOWN_SLIPS: dict[tuple[str, str], dict[str, str]] = {
-    ("li2018", "lstm3lr"): {"smoking": "Li Table 1 repeats SRNN's smoking row"},
-    ("martinez2017", "residual_sup_ma"): {
-        "smoking": "Martinez Table 1's smoking row repeats the eating row",
-        "phoning": "Martinez Table 2's phoning row (0.23 0.43 0.69 0.82 at 80-400 ms) is a third "
-        "to a half of Li et al.'s retraining of the same model (RRNN, Li Table 2: 0.62 1.10 "
-        "1.54 1.70) and of Li's own model (0.59 1.13 1.51 1.65); most likely a slip",
-    },
-    ("martinez2017", "zero_velocity"): {
-        "greeting": "Martinez Table 2's greeting and phoning rows are equal and neither matches "
-        "what the protocol gives on the data",
-        "phoning": "Martinez Table 2's phoning row repeats greeting",
-    },
-    ("martinez2017", "residual_unsup_ma"): {
-        "sitting": "Martinez Table 2's 80 ms average disagrees with its rows (sitting is the "
-        "likely bad cell)"
-    },
-}
-
-
 def known_slips(label: str | None, actions: list[str]) -> dict[str, str]:
-    """{action: why} for the `actions` whose published values under `label` ("<paper>
-    <method>") include a known slip of the paper."""
-    slips = KNOWN_SLIPS.get(tuple(label.split(" ", 1)), {}) if label and " " in label else {}
+    """{action: why} of the `actions` whose values under `label` ("<paper> <method>") are
+    known slips of the paper."""
+    slips = REFERENCES["slips"].get(label or "", {})
     return {a: slips[a] for a in actions if a in slips}
-
-
-PAPERS = {"li2018": "Li et al.", "martinez2017": "Martinez et al."}
-# Published numbers of experiments whose model config names the full model's: the ablations
-# of Li's Tables 5 and 6 (averages only), and Figure 4's rows, printed without numbers (None).
-EXPERIMENT_PUBLISHED: dict[str, dict | None] = {
-    "li2018_h36m_no_long_term": {
-        "paper": "li2018",
-        "table": 5,
-        "method": "conv_s2s_without_long_term",
-    },
-    "li2018_h36m_kernel_4x4": {"paper": "li2018", "table": 6, "method": "kernel_4x4"},
-    "li2018_h36m_kernel_7x2": {"paper": "li2018", "table": 6, "method": "kernel_7x2"},
-    **{f"li2018_h36m_{c}": None for c in ("C5", "C10", "C5_no_adv", "C10_no_adv", "C20_no_adv")},
-}
-# Other papers' numbers for the same model on the same data: Li et al. retrained Martinez et
-# al.'s residual GRU with Martinez's code (row "RRNN" of their Tables 1-2).
-ALSO_PUBLISHED: dict[tuple[str, str], list[dict]] = {
-    ("martinez2017 residual_sup_ma", "h36m"): [
-        {
-            "paper": "li2018",
-            "method": "rrnn",
-            "about": "Li et al.'s retraining of the same model, row RRNN of their Tables 1-2",
-        }
-    ],
-}
-# What was compared with an experiment's reference code, for the diagnosis of a row that misses
-# its target (facts: the shared docs/protocol.md).
-REFERENCE_CODE_CHECKED: dict[str, str] = {
-    "li2018_cmu": "Every setting was checked against Li et al.'s reference code: the actions "
-    "trained together, iterations, batch, learning rate and its decay, window lengths, the "
-    "dimensions kept, the normalisation rule, VALID padding, test-window selection and seed, "
-    "the Euler error"
-}

@@ -1,18 +1,16 @@
-"""Where src.report's runs come from: finished run folders (config.yaml beside checkpoints/ or
-summary.yaml, src.train's layout), which src.report evaluates as src.eval does; run records, a
-run's evaluations kept as one small JSON file (docs/runs); and scored predictions files.
+"""Where src.report's runs come from: finished run folders (src.train's layout), run records
+(one small JSON file per evaluated run, docs/runs) and scored predictions files.
 
-Each run is evaluated twice on each protocol: its best checkpoint (lowest validation error;
-validation runs on the test windows, as in both reference implementations, so this selection
-uses test information, protocol section 8) and its last (no test information). A record holds
-what the page needs of an evaluated run (config, seed, iterations, provenance, results,
-validation curve) and no checkpoint, so a page can grow over several machines: a report
-evaluates only the runs it is given and reads the others from their records. A record is named
-`<run_name>_seed<seed>_<config hash>.json`: the same run evaluated again replaces it.
+A run is evaluated on its best checkpoint (lowest validation error, on the test windows as in
+both reference implementations, so it uses test information: protocol section 8) and its last.
+A record holds what the page needs of an evaluated run and no checkpoint, so that a page grows
+over several machines: a report evaluates only the runs it is given and reads the others'
+records. `<run_name>_seed<seed>_<config hash>.json`: the run evaluated again replaces it.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -26,12 +24,15 @@ from src.reporting.groups import identity
 from src.reporting.tables import read_results
 from src.reporting.tensorboard import validation_curve
 
-SELECTIONS = ("best", "last")
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
 RECORD_FORMAT = 1
 RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
 KEPT = "finished wall_time_s train_time_s commit device missing_files train_missing_files "
 KEPT = (KEPT + "archive_sha256 validations").split()
+
+
+def _yaml(path: Path) -> dict:
+    return yaml.safe_load(path.read_text()) if path.is_file() else {}
 
 
 def _is_run(folder: Path) -> bool:
@@ -41,40 +42,31 @@ def _is_run(folder: Path) -> bool:
     )
 
 
-def discover_runs(paths: list[Path]) -> list[Path]:
-    """The run folders given, or found under the folders given, in sweep order (job 2 before
-    job 10); each once."""
+def _natural(path: Path) -> list:
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+
+
+def discover_runs(paths: list) -> list[Path]:
+    """The run folders given or found under them, in sweep order (job 2 before 10), each once."""
     runs: list[Path] = []
-    for path in map(Path, paths):
-        path = path.resolve()
+    for path in (Path(p).resolve() for p in paths):
         if not path.exists():
             raise ConfigError(f"runs: {path} does not exist")
-        found = (
-            [path]
-            if _is_run(path)
-            else sorted(
-                (
-                    p.parent
-                    for p in path.rglob("config.yaml")
-                    if ".hydra" not in p.parts and _is_run(p.parent)
-                ),
-                key=lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))],
-            )
-        )
+        found = [path] if _is_run(path) else []
+        found = found or [p.parent for p in path.rglob("config.yaml") if _is_run(p.parent)]
         if not found:
             raise ConfigError(
                 f"runs: no training run under {path}: a run folder holds config.yaml and "
                 "checkpoints/ (is the run finished, and is this its folder?)"
             )
-        runs += [r for r in found if r not in runs]
+        runs += [r for r in sorted(found, key=_natural) if r not in runs]
     return runs
 
 
 def display_root(runs: list[Path]) -> Path:
-    """The folder the page names run folders relative to, so that it shows no machine's paths:
-    the project for runs inside it, else the runs' common folder, raised until each run shows
-    as two parts at least (<run_name>/<time>: two experiments started in the same second must
-    not read alike)."""
+    """The folder the page names run folders relative to (no machine's paths): the project, or
+    the runs' common folder raised until each shows as <run_name>/<time> at least (two
+    experiments started in the same second must not read alike)."""
     runs = [Path(r).resolve() for r in runs]
     if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
         return PROJECT_ROOT
@@ -85,22 +77,14 @@ def display_root(runs: list[Path]) -> Path:
 
 
 def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
-    """({"best": path, "last": path}, notes). best is summary.yaml's best_checkpoint, the
-    lowest validation error of the whole run, resumes included (it may lie in an earlier
-    segment's folder; in a moved folder it is found by its name); without it, the folder's
-    newest best-*.ckpt, and the notes say so. last is checkpoints/last.ckpt."""
-    folder, notes, best = run / "checkpoints", [], None
-    summary = (
-        yaml.safe_load((run / "summary.yaml").read_text())
-        if (run / "summary.yaml").is_file()
-        else {}
-    )
-    if summary.get("best_checkpoint"):
-        named = Path(summary["best_checkpoint"])
-        best = next(
-            (c for c in (named, PROJECT_ROOT / named, folder / named.name) if c.is_file()), None
-        )
-        if best is None:
+    """({"best": path, "last": path}, notes). best: summary.yaml's, of the whole run, resumes
+    included (maybe in an earlier segment's folder; in a moved one found by its name), else the
+    folder's newest best-*.ckpt, said in the notes. last: checkpoints/last.ckpt."""
+    folder, notes, best, summary = run / "checkpoints", [], None, _yaml(run / "summary.yaml")
+    if named := summary.get("best_checkpoint"):
+        named = Path(named)
+        places = (named, PROJECT_ROOT / named, folder / named.name)
+        if (best := next((c for c in places if c.is_file()), None)) is None:
             notes.append(f"best checkpoint {named.name} of summary.yaml not found")
     elif not summary:
         notes.append("no summary.yaml (run unfinished or killed?)")
@@ -110,16 +94,14 @@ def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
     last = folder / "last.ckpt" if (folder / "last.ckpt").is_file() else None
     if best is None and last is None:
         raise ConfigError(f"runs: {run} has no checkpoints (is it a finished training run?)")
-    if best is None:
-        notes.append("no best checkpoint: best is last.ckpt")
-    if last is None:
-        notes.append("no last.ckpt: last is the best checkpoint")
+    notes += ["no best checkpoint: best is last.ckpt"] if best is None else []
+    notes += ["no last.ckpt: last is the best checkpoint"] if last is None else []
     return {"best": best or last, "last": last or best}, notes
 
 
 def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
-    """The checkpoint's training iteration, and the files its data copy lacked when it trained
-    (an evaluation sees only the test files). The report's one direct read of a checkpoint."""
+    """The checkpoint's iteration, and the files its data copy lacked when it trained (an
+    evaluation sees only the test files)."""
     from src.lit.checkpoints import read_checkpoint
 
     ckpt = read_checkpoint(path)
@@ -129,24 +111,15 @@ def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
 
 
 def load_run(path: Path, root: Path) -> dict:
-    """One run folder as src.report's run dict; paths shown relative to `root`."""
-    config = yaml.safe_load((path / "config.yaml").read_text())
-    summary = (
-        yaml.safe_load((path / "summary.yaml").read_text())
-        if (path / "summary.yaml").is_file()
-        else {}
-    )
+    config, summary = _yaml(path / "config.yaml"), _yaml(path / "summary.yaml")
     checkpoints, notes = find_checkpoints(path)
     facts = {s: checkpoint_facts(p) for s, p in checkpoints.items()}
-
-    def shown(p: Path) -> str:
-        return str(p.relative_to(root) if p.is_relative_to(root) else p)
-
+    shown = lambda p: str(p.relative_to(root) if p.is_relative_to(root) else p)  # noqa: E731
     return {
         "path": shown(path),
         "folder": str(path.resolve()),  # to tell a resumed run's earlier segments from copies
-        # A resumed run's best checkpoint may lie in an earlier segment's folder; only those
-        # under `root`, as a record names no absolute path.
+        # A resumed run's best checkpoint may lie in an earlier segment's folder: recorded as
+        # shown where it is under `root`, as a record names no absolute path.
         "shown_checkpoints": {
             str(p): shown(p) for p in checkpoints.values() if p.is_relative_to(root)
         },
@@ -164,38 +137,32 @@ def load_run(path: Path, root: Path) -> dict:
 
 
 def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list[dict]:
-    """The run folders given (or found under them) and the runs recorded in `records`; a
-    folder given again replaces its record."""
+    """The runs of the folders given and of `records`; a folder given replaces its record."""
     folders = discover_runs(paths)
     root = display_root(folders) if folders else PROJECT_ROOT
     runs = [load_run(folder, root) for folder in folders]
-    given = [(record_name(r), Path(r["path"]).parts) for r in runs]
+    given = {(record_name(r), Path(r["path"]).parts) for r in runs}
 
     def same_run(record: dict) -> bool:  # shown paths end alike: each is relative to its root
-        mine = Path(record["path"]).parts
-        return any(
-            name == record_name(record)
-            and mine[-min(len(mine), len(theirs)) :] == theirs[-min(len(mine), len(theirs)) :]
-            for name, theirs in given
-        )
+        mine = Path(record["path"]).parts[::-1]
+        ends = lambda theirs: all(a == b for a, b in zip(mine, theirs[::-1], strict=False))  # noqa: E731
+        return any(name == record_name(record) and ends(theirs) for name, theirs in given)
 
     recorded = read_records(records, protocols) if records else []
     return runs + [r for r in recorded if not same_run(r)]
 
 
-# ------------------------------------------------------------------------------ records
 def record_name(run: dict) -> str:
     config = run["config"]
-    ident = json.dumps(
-        [config.get("run_name"), config["data"]["name"], identity(config)], sort_keys=True
-    )
+    ident = [config.get("run_name"), config["data"]["name"], identity(config)]
+    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:10]
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(config.get("run_name", "run")))
-    return f"{name}_seed{run['seed']}_{hashlib.sha256(ident.encode()).hexdigest()[:10]}.json"
+    return f"{name}_seed{run['seed']}_{digest}.json"
 
 
 def _portable(value, run_path: str, shown: dict[str, str]):
-    """`value` without a machine's absolute paths: a checkpoint as the page shows it (else
-    inside the run's shown folder), any other absolute path (an override's) by its last part."""
+    """`value` without absolute paths: a checkpoint as the page shows it (else in the run's
+    shown folder), another absolute path (an override's) by its last part."""
     if isinstance(value, dict):
         out = {k: _portable(v, run_path, shown) for k, v in value.items()}
         if isinstance(ckpt := value.get("checkpoint"), str):
@@ -211,7 +178,6 @@ def _portable(value, run_path: str, shown: dict[str, str]):
 
 
 def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
-    """Write the evaluated run's record into `folder`; returns its path."""
     shown = run.get("shown_checkpoints", {})
     record = {
         "format": RECORD_FORMAT,
@@ -226,8 +192,8 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
 
 
 def read_records(folder: Path, protocols: list[str]) -> list[dict]:
-    """The runs recorded in `folder`, evaluated, each with a note naming its record. Refuses,
-    naming the file and the fix, a file that is not a record or lacks one of `protocols`."""
+    """The runs recorded in `folder`, each with a note naming its record; a file that is not a
+    record, or lacks one of `protocols`, is refused naming the fix."""
     if not Path(folder).is_dir():
         raise ConfigError(
             f"records={folder} is not a folder; give the folder of run records (docs/runs holds "
@@ -239,8 +205,7 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
             record = json.loads(path.read_text())
         except json.JSONDecodeError as err:
             raise ConfigError(f"{path} is not valid JSON ({err}): restore or remove it") from None
-        lacking = [k for k in ("format", *RECORD_KEYS) if k not in record]
-        if not isinstance(record, dict) or lacking:
+        if lacking := [k for k in ("format", *RECORD_KEYS) if k not in record]:
             raise ConfigError(
                 f"{path} is not a run record (no {', '.join(lacking)}); only files written by "
                 "`src.report records=...` belong in that folder"
@@ -250,7 +215,7 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
                 f"{path} is a record of format {record['format']}, this version reads format "
                 f"{RECORD_FORMAT}: evaluate its run again"
             )
-        for selection in SELECTIONS:
+        for selection in ("best", "last"):
             have = record["results"].get(selection, {})
             if missing := [p for p in protocols if p not in have]:
                 raise ConfigError(
@@ -258,13 +223,9 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
                     f"{', '.join(missing)}: give protocols=[{','.join(have)}], or evaluate its "
                     "run folder again"
                 )
-        evaluated = record["evaluated"]
-        record["notes"] = [
-            *record["notes"],
-            f"record {path.name}: evaluated at {evaluated['commit']} on {evaluated['date']}",
-        ]
-        # JSON's keys are text: iterations and horizons again.
-        record["validations"] = {
+        when = record["evaluated"]
+        record["notes"] += [f"record {path.name}: evaluated at {when['commit']} on {when['date']}"]
+        record["validations"] = {  # JSON's keys are text: iterations and horizons again
             int(i): {int(ms): v for ms, v in e.items()}
             for i, e in (record.get("validations") or {}).items()
         }
@@ -272,26 +233,22 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
     return runs
 
 
+@functools.cache
+def _sha256(path: Path) -> str:
+    return f"{path.name} {hashlib.sha256(path.read_bytes()).hexdigest()[:16]}…"
+
+
 def mark_archives(entries: list[dict], archives: Path | None) -> None:
-    """Set each entry's `archive_sha256` ("h3.6m.zip 1a2b…") where its dataset's archive is in
-    the archive folder; each archive is read once."""
-    hashes: dict[str, str] = {}
+    """Each entry's `archive_sha256` ("h3.6m.zip 1a2b…"), where its dataset's archive is."""
     for entry in entries:
         name = ARCHIVES.get(entry.get("dataset") or entry["config"]["data"]["name"])
-        if archives is None or not name or not (archives / name).exists():
-            continue
-        if name not in hashes:
-            digest = hashlib.sha256()
-            with (archives / name).open("rb") as fh:
-                while block := fh.read(1 << 20):
-                    digest.update(block)
-            hashes[name] = f"{name} {digest.hexdigest()[:16]}…"
-        entry["archive_sha256"] = hashes[name]
+        if archives is not None and name and (archives / name).exists():
+            entry["archive_sha256"] = _sha256(archives / name)
 
 
 def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
-    """Rows beside the baselines for models scored from a predictions file (`python -m src.eval
-    predictions=...`): one per model and dataset, from the results.json of each protocol."""
+    """A row beside the baselines per model and dataset scored from a predictions file (`src.eval
+    predictions=...`), from its results.json of each protocol."""
     entries: dict[tuple[str, str], dict] = {}
     for path in paths:
         result = read_results(path)

@@ -1,23 +1,19 @@
-"""An evaluation's result table in the papers' layout (rows: actions and their average, columns:
-horizons in ms), as src.eval writes it to results.{json,md,csv}, and the one markdown writer
-of every table the project prints.
+"""An evaluation's result table in the papers' layout (actions and their average by horizon),
+as src.eval writes it to results.{json,md,csv}, and the one markdown writer of every table.
 
-A table is the dict stored in results.json: `values` holds every evaluated action, `absent`
-every other one with the reason (e.g. S5 files missing from a partial data copy), printed as
-"absent", never as 0 or NaN. The average is over the evaluated actions only (protocol §4.1
-step 6); beside it stands the published average recomputed over the same actions (like for
-like when some are absent), and below it the paper's average as printed, over all of its own.
+`values` holds every evaluated action, `absent` every other with the reason (e.g. S5 files
+missing from a partial data copy), printed as "absent", never as 0 or NaN. The average is over
+the evaluated actions only (protocol §4.1 step 6); beside it the published average over the
+same actions (like for like), below it the paper's own, over all of its actions.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import pandas as pd
-from torch import Tensor
 
 from src.lit.factory import ConfigError
 from src.metrics.euler_error import horizon_frame_indices
@@ -25,52 +21,34 @@ from src.reporting.published import ReportingError
 
 AVERAGE = "average"
 AS_PRINTED = "average_as_printed"
+RIGHT = ("n", "iterations", "seed", "best at", "wall time")
 
 
-def markdown(frame: pd.DataFrame) -> str:
-    """A frame as a GitHub table: cells as written (no number parsing), numbers right-aligned
-    (the columns named in ms and counts)."""
-    right = [
-        str(c).endswith(" ms") or c in ("n", "iterations", "seed", "best at", "wall time")
-        for c in frame.columns
-    ]
-    return frame.to_markdown(
-        index=False, disable_numparse=True, colalign=["right" if r else "left" for r in right]
-    )
+def markdown(rows, columns=None) -> str:
+    """A GitHub table, cells as written; the columns in ms and the counts right-aligned."""
+    frame = pd.DataFrame(rows, columns=columns)
+    align = ["right" if str(c).endswith(" ms") or c in RIGHT else "left" for c in frame.columns]
+    return frame.to_markdown(index=False, disable_numparse=True, colalign=align)
 
 
 def fmt(value: float | None, decimals: int = 2) -> str:
-    """A number at `decimals` places; '-' where there is none."""
-    return (
-        "-"
-        if value is None or (isinstance(value, float) and math.isnan(value))
-        else (f"{value:.{decimals}f}")
-    )
+    return "-" if value is None or value != value else f"{value:.{decimals}f}"
 
 
-def same_set_average(
-    published: Mapping[str, Mapping[int, float]] | None,
-    actions: Sequence[str],
-    horizons_ms: Sequence[int],
-) -> dict[int, float]:
-    """Mean of the published per-action values over `actions`, at each horizon where the paper
-    gives a value for every one of them: the published average over the same actions as ours
-    (the papers' own averages cover all of theirs, and a data copy may lack some)."""
+def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
+    """The published {action: {ms: value}} averaged over our `actions` (a paper's own average
+    covers all of its actions), at each horizon where every one of them has a value."""
     out = {}
     for ms in horizons_ms if published and actions else ():
         cells = [published.get(a, {}).get(ms) for a in actions]
-        if all(v is not None for v in cells):
+        if None not in cells:
             out[int(ms)] = sum(cells) / len(cells)
     return out
 
 
-def results_from_metric(
-    values: Tensor, actions: Sequence[str], frame_ms: float = 40, absent: Mapping | None = None
-) -> dict[str, dict[int, float]]:
-    """{action: {ms: value}} at the table horizons from a metric's compute() output (A, T),
-    `absent` actions left out. An action with NaN (no windows) that is not listed as absent
-    raises, so that no action silently disappears from a table; so does a listed one that has
-    values."""
+def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> dict:
+    """{action: {ms: value}} at the table horizons of a metric's output (A, T), less `absent`;
+    an action without windows (NaN) must be listed absent, so that none silently disappears."""
     absent = dict(absent or {})
     if values.dim() != 2 or values.shape[0] != len(actions):
         raise ReportingError(
@@ -96,18 +74,10 @@ def results_from_metric(
 
 
 def result_table(
-    title: str,
-    metric: str,
-    unit: str,
-    actions: Sequence[str],
-    horizons_ms: Sequence[int],
-    values: Mapping[str, Mapping[int, float]],
-    absent: Mapping[str, str],
-    published: Mapping[str, Mapping[int, float]] | None = None,
-    published_label: str | None = None,
+    title, metric, unit, actions, horizons_ms, values, absent, published=None, published_label=None
 ) -> dict:
-    """The table as results.json holds it (horizons as text keys), after checking that every
-    action is either evaluated, with a finite value at each horizon, or absent with a reason."""
+    """The table as results.json holds it (horizons as text keys); every action either has a
+    finite value at each horizon or is absent with a reason."""
     horizons = [int(ms) for ms in horizons_ms]
     if not horizons:
         raise ReportingError(f"{title}: no horizons; the model predicts too few frames")
@@ -122,14 +92,12 @@ def result_table(
                 f"{title}: {action!r} has no finite value at every horizon; list it in absent "
                 "with a reason instead"
             )
-    evaluated = [a for a in actions if a in values]
-    n = len(evaluated) or 1  # no action evaluated: no average
-    average = {ms: sum(values[a][ms] for a in evaluated) / n for ms in horizons}
-    same = same_set_average(published, evaluated, horizons)
-
-    def text_keys(row: Mapping) -> dict[str, float]:
-        return {str(ms): float(v) for ms, v in row.items()}
-
+    evaluated, pub = [a for a in actions if a in values], published is not None
+    average = {
+        ms: sum(values[a][ms] for a in evaluated) / max(len(evaluated), 1) for ms in horizons
+    }
+    text = lambda row: {str(ms): float(v) for ms, v in row.items()}  # noqa: E731
+    same = text(same_set_average(published, evaluated, horizons))
     return {
         "title": title,
         "metric": metric,
@@ -137,61 +105,55 @@ def result_table(
         "decimals": 1 if unit == "mm" else 2,
         "actions": list(actions),
         "horizons_ms": horizons,
-        "values": {a: text_keys(values[a]) for a in evaluated},
+        "values": {a: text(values[a]) for a in evaluated},
         "absent": dict(absent),
-        "average": {"actions": evaluated, "values": text_keys(average)} if evaluated else None,
-        "published": None if published is None else {a: text_keys(r) for a, r in published.items()},
-        "published_label": published_label if published is not None else None,
-        "published_same_set": None if published is None else text_keys(same),
+        "average": {"actions": evaluated, "values": text(average)} if evaluated else None,
+        "published": {a: text(r) for a, r in published.items()} if pub else None,
+        "published_label": published_label if pub else None,
+        "published_same_set": same if pub else None,
     }
 
 
-def table_frame(table: Mapping) -> pd.DataFrame:
-    """The table long: action, ms, value ("absent" where absent), published, note; then the
-    average (published: the same-set average) and the paper's as printed."""
-    published = table.get("published") or {}
-    rows = []
-    for action in table["actions"]:
-        for ms in map(str, table["horizons_ms"]):
-            value = table["values"].get(action, {}).get(ms, "absent")
-            pub = published.get(action, {}).get(ms)
-            rows.append((action, ms, value, pub, table["absent"].get(action, "")))
+def table_frame(table: dict) -> pd.DataFrame:
+    """The table long (action, ms, value, published, note), then the average (published: the
+    same-set one) and the paper's as printed."""
+    published, horizons = table.get("published") or {}, list(map(str, table["horizons_ms"]))
+    rows = [
+        (a, ms, table["values"].get(a, {}).get(ms, "absent"), published.get(a, {}).get(ms))
+        + (table["absent"].get(a, ""),)
+        for a in table["actions"]
+        for ms in horizons
+    ]
     if table["average"]:
-        covered = table["average"]["actions"]
+        covered, same = table["average"]["actions"], table.get("published_same_set") or {}
         note = f"mean over the {len(covered)} evaluated actions ({', '.join(covered)})"
-        same = table.get("published_same_set") or {}
-        for ms, value in table["average"]["values"].items():
-            rows.append((AVERAGE, ms, value, same.get(ms), note))
+        rows += [
+            (AVERAGE, ms, v, same.get(ms), note) for ms, v in table["average"]["values"].items()
+        ]
         n = len(set(published) - {AVERAGE})
         scope = f"the paper's own average, over all {n or 'of its'} actions"
         printed = published.get(AVERAGE, {})
-        for ms in map(str, table["horizons_ms"]):
-            if ms in printed:
-                rows.append((AS_PRINTED, ms, "", printed[ms], scope))
+        rows += [(AS_PRINTED, ms, "", printed[ms], scope) for ms in horizons if ms in printed]
     frame = pd.DataFrame(rows, columns=["action", "ms", "value", "published", "note"])
     return frame.assign(ms=frame.ms.astype(int), metric=table["metric"])
 
 
-def table_markdown(table: Mapping) -> str:
-    """The table as results.md shows it: ours (published) per cell, absent actions with a
-    numbered footnote for their reason, the average over the evaluated actions."""
+def table_markdown(table: dict) -> str:
+    """results.md's table: ours (published) per cell, absent actions with a footnote."""
     frame, decimals = table_frame(table), table.get("decimals", 2)
     has_published = table.get("published") is not None
-    reasons = list(dict.fromkeys(r for r in table["absent"].values()))
+    reasons = list(dict.fromkeys(table["absent"].values()))
+    names = {AVERAGE: f"**{AVERAGE}**", AS_PRINTED: "published average, as printed"}
+    names |= {a: f"{a} [{reasons.index(r) + 1}]" for a, r in table["absent"].items()}
 
     def cell(row) -> str:
-        if row.value == "absent" or row.value == "":
+        if row.value in ("absent", ""):
             return row.value or fmt(row.published, decimals)
         text = f"{row.value:.{decimals}f}"
         return f"{text} ({fmt(row.published, decimals)})" if has_published else text
 
-    def label(action: str) -> str:
-        if action in table["absent"]:
-            return f"{action} [{reasons.index(table['absent'][action]) + 1}]"
-        names = {AVERAGE: f"**{AVERAGE}**", AS_PRINTED: "published average, as printed"}
-        return names.get(action, action)
-
-    frame = frame.assign(cell=[cell(r) for r in frame.itertuples()], action=frame.action.map(label))
+    cells = [cell(r) for r in frame.itertuples()]
+    frame = frame.assign(cell=cells, action=frame.action.map(lambda a: names.get(a, a)))
     wide = frame.pivot(index="action", columns="ms", values="cell")
     wide = wide.reindex(list(dict.fromkeys(frame.action)))
     wide.columns = [f"{ms} ms" for ms in wide.columns]
@@ -216,15 +178,12 @@ def table_markdown(table: Mapping) -> str:
     return "\n".join(lines) + "\n"
 
 
-def tables_csv(tables: Sequence[Mapping]) -> str:
-    """The tables as one long CSV, one row per action and horizon: metric, action, ms, value,
-    published, note, values at full precision."""
+def tables_csv(tables) -> str:
     frame = pd.concat([table_frame(t) for t in tables])
     return frame[["metric", "action", "ms", "value", "published", "note"]].to_csv(index=False)
 
 
-def read_results(path: str | Path) -> dict:
-    """The parsed results.json of one `python -m src.eval` run."""
+def read_results(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(

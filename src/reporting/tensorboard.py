@@ -8,22 +8,17 @@ from pathlib import Path
 AVERAGE_TAG = "val_euler/average/"
 
 
-def error_curve_layout(actions: list[str], horizons: dict[int, int]) -> dict:
-    """Custom-scalar layout: for each metric, one multiline chart per action (and the average),
-    each with one line per horizon. Tags match MotionPredictor's logging."""
-    layout = {}
-    for stage in ("val",):
-        for metric in ("euler", "mpjpe"):
-            charts = {}
-            for action in ["average", *actions]:
-                tags = [f"{stage}_{metric}/{action}/{ms:04d}ms" for ms in horizons]
-                charts[action] = ["Multiline", tags]
-            layout[f"{stage} {metric} error per horizon"] = charts
-    return layout
-
-
-def add_error_curve_layout(writer, actions: list[str], horizons: dict[int, int]) -> None:
-    writer.add_custom_scalars(error_curve_layout(actions, horizons))
+def add_error_curve_layout(writer, actions: list[str], horizons) -> None:
+    """Custom scalars: per metric, a chart per action (and the average) with a line per horizon;
+    the tags are MotionPredictor's."""
+    layout = {
+        f"val {m} error per horizon": {
+            a: ["Multiline", [f"val_{m}/{a}/{ms:04d}ms" for ms in horizons]]
+            for a in ["average", *actions]
+        }
+        for m in ("euler", "mpjpe")
+    }
+    writer.add_custom_scalars(layout)
 
 
 def validation_curve(run: Path) -> dict[int, dict[int, float]]:
