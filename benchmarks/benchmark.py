@@ -12,7 +12,7 @@ the median over repeats, A/B variants interleaved so background load hits both a
 
 Beside the bare loop it times `python -m src.train` itself (Trainer, callbacks, logging, data;
 benchmarks/train_cli.py) for li2018_h36m and martinez2017_res_sup, and li2018_h36m at the
-reference commit `--ref` side by side, and fills the issue's targets table with what it measured
+reference commit `--ref` side by side, and fills the speed targets table with what it measured
 ("not measured" for a device it did not run on). That part needs the real data (MOTION_ARCHIVES
 or an unpacked MOTION_DATA_DIR) and is skipped by --smoke and --no-train-cli.
 """
@@ -36,7 +36,12 @@ sys.path.insert(0, str(ROOT))
 import torch  # noqa: E402
 from torch.utils.flop_counter import FlopCounterMode  # noqa: E402
 
-from benchmarks.benchmark_page import TRAIN_KINDS, headline, issue_targets, markdown  # noqa: E402
+from benchmarks.benchmark_page import (  # noqa: E402
+    TRAIN_KINDS,
+    issue_targets,
+    markdown,
+    write_page,
+)
 from benchmarks.data_loading import machine_info  # noqa: E402
 from src.data.normalization import Normalizer  # noqa: E402
 from src.inference import compile_for_prediction  # noqa: E402
@@ -336,9 +341,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--smoke", action="store_true", help="tiny run for CI (< 60 s)")
     ap.add_argument("--json", type=Path, default=ROOT / "outputs" / "benchmark.json")
-    ap.add_argument("--markdown", type=Path, help="also write the report to this file")
+    ap.add_argument(
+        "--markdown",
+        type=Path,
+        help="also write the report to this page, between its <!-- benchmark:start/end --> "
+        "markers when it has them (docs/performance.md), else as a new file",
+    )
     ap.add_argument("--val-every", type=int, default=1000, help="conf/train.yaml val_every")
-    ap.add_argument("--readme", type=Path, help="put the headline numbers in this README's block")
     ap.add_argument("--ref", default="58436ca", help="commit src.train is compared with")
     ap.add_argument("--cli-iterations", type=int, default=60, help="src.train run length")
     ap.add_argument("--no-train-cli", action="store_true", help="skip timing src.train")
@@ -402,12 +411,7 @@ def main(argv: list[str] | None = None) -> dict:
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(r, indent=1))
     if args.markdown:
-        args.markdown.parent.mkdir(parents=True, exist_ok=True)
-        args.markdown.write_text(table)
-    if args.readme:
-        from src.report import replace_block
-
-        replace_block(args.readme, "performance", headline(r))
+        write_page(args.markdown, table)
     return r
 
 

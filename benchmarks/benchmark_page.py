@@ -1,7 +1,9 @@
-"""The page of benchmarks/benchmark.py: its table and notes (docs/performance.md), the speed
-issue's targets table and the README's headline numbers, all generated from one result dict."""
+"""The page of benchmarks/benchmark.py: its table, the speed targets and notes
+(docs/performance.md), all generated from one result dict."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import torch
 
@@ -15,7 +17,7 @@ TRAIN_KINDS = {
 def issue_targets(
     device: torch.device, cli: dict, inference: dict, pred: dict, bound: dict | None = None
 ) -> list[list[str]]:
-    """Rows [measurement, now, target] of the speed issue's table, from this run only."""
+    """Rows [measurement, now, target] of the speed targets table, from this run only."""
     on_gpu = device.type == "cuda"
     here = "GPU" if on_gpu else "CPU"
     absent = f"not measured (this run was on the {here})"
@@ -145,7 +147,7 @@ def markdown(r: dict) -> str:
             f"{cli['conv_adv'] / t[f'conv_adv@{B0}']:.2f} |",
             f"| `src.train` / bare loop, gru_s2s, batch {B0} | {cli['gru'] / t[f'gru@{B0}']:.2f} |",
         ]
-    lines += ["", "The speed issue's targets, measured by this run:", ""]
+    lines += ["", "The speed targets, measured by this run:", ""]
     lines += ["| measurement | now | target |", "|---|---|---|"]
     for name, now, goal in r.get("issue_targets", []):
         lines.append(f"| {name} | {now} | {goal} |")
@@ -154,8 +156,6 @@ def markdown(r: dict) -> str:
     for name, (value, ok) in targets.items():
         lines.append(f"| {name} | {value} | {'yes' if ok else 'NO'} |")
     head = [
-        "# Performance",
-        "",
         f"Command: `{r['command']}`  ",
         f"Date: {r['date']}  ",
         f"Commit: {c['commit']}  ",
@@ -193,21 +193,16 @@ NOTES = [
 ]
 
 
-def headline(r: dict) -> str:
-    """The few numbers the README quotes, generated from a benchmark result."""
-    c, inf, its = r["context"], r["inference"], r["training_it_s"]
-    B0 = r["batches"][0]
-    return "\n".join(
-        [
-            f"Measured by `{r['command']}` on {r['date']} at commit {c['commit']} "
-            f"({c['cpu']}, {c['cores']} cores, device {c['device']}):",
-            "",
-            f"- training, batch {B0}: {its[f'conv_adv@{B0}']:.2f} it/s for conv_s2s with the "
-            f"adversarial regulariser, {its[f'gru@{B0}']:.2f} it/s for gru_s2s;",
-            f"- prediction of 25 frames from 50 at batch 1: "
-            f"{inf['latency_ms_median']:.1f} ms median;",
-            f"- throughput at batch {inf['throughput_batch']}: "
-            f"{inf['throughput_seq_s']:.0f} sequences/s;",
-            f"- matmul rate of the same machine: {r['matmul_gflops']:.0f} GFLOP/s.",
-        ]
-    )
+START, END = "<!-- benchmark:start -->", "<!-- benchmark:end -->"
+
+
+def write_page(path: Path, table: str) -> None:
+    """The benchmark's table goes between the page's markers, so the hand-written sections of
+    docs/performance.md around it stay; a page without markers is a new file."""
+    if path.is_file() and START in (text := path.read_text()) and END in text:
+        head, rest = text.split(START, 1)
+        table = f"{head}{START}\n{table}{END}{rest.split(END, 1)[1]}"
+    else:
+        table = f"# Performance\n\n{START}\n{table}{END}\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(table)

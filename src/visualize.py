@@ -18,14 +18,11 @@ from omegaconf import DictConfig
 
 from src.cli import hydra_entry
 from src.data.base import MotionDataModule
-from src.lit.factory import ConfigError, build_for_evaluation, register_resolvers
+from src.lit.config import check
+from src.lit.factory import ConfigError, build_for_evaluation
 from src.lit.run_folders import nothing_left_if_refused
-from src.lit.schema import VisualizeConfig
-from src.lit.validation import validate_eval_config
 from src.metrics.kinematics import Skeleton
 from src.plots import animate, frame_strip, window_rows
-
-register_resolvers()
 
 
 def select_window(dm: MotionDataModule, action: str, window: int) -> int:
@@ -49,11 +46,7 @@ def select_window(dm: MotionDataModule, action: str, window: int) -> int:
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
     matplotlib.use("Agg")
-    # Types first: a word would fail deep in the drawing, window=1.5 would show window 1.
-    validate_eval_config(cfg, VisualizeConfig)
-    for key in ("observed_shown", "strip_step"):
-        if cfg[key] < 1:
-            raise ConfigError(f"{key}={cfg[key]} must be >= 1")
+    check(cfg, "visualize")  # window's range depends on the action: select_window names it
     dm, module = build_for_evaluation(cfg)
     index = select_window(dm, cfg.action, int(cfg.window))
     shown = min(int(cfg.observed_shown), dm.observed_len)
