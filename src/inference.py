@@ -56,8 +56,7 @@ def compile_for_prediction(net: nn.Module) -> nn.Module:
 
 
 class MotionForecaster:
-    """A trained predictor in eval mode; inputs and outputs are raw exp-map frames (..., F) at
-    `fps` frames per second (25: every other row of the dataset's files, as in training)."""
+    """A trained predictor in eval mode: raw exp-map frames (..., F) at `fps` in and out."""
 
     def __init__(
         self,
@@ -117,9 +116,8 @@ class MotionForecaster:
         if step < 1 or abs(fps / self.fps - step) > 1e-6:
             raise InferenceInputError(
                 f"fps={fps:g}: this model forecasts from frames at {self.fps:g} fps, and {fps:g} "
-                f"is not a whole multiple of it. Resample the frames to {self.fps:g} fps (pass "
-                f"them without fps=), or pass frames at fps={2 * self.fps:g}, of which every "
-                "other one is used (as the protocol downsamples H3.6M's 50 Hz files)."
+                f"is no whole multiple of it; resample the frames to {self.fps:g} fps, or pass "
+                f"frames at a multiple (fps={2 * self.fps:g}: every other one is used)"
             )
         return step
 

@@ -78,15 +78,11 @@ def read_predictions(path: str | Path) -> Predictions:
             "must hold numbers and it must be (N, T, F) with N >= 1: raw exp-map frames of N "
             "windows, T future frames each (prediction[i] for window_id[i])"
         )
-    if ids.dtype.kind not in "US" or ids.ndim != 1:
+    if ids.dtype.kind not in "US" or ids.shape != (len(prediction),):
         raise PredictionsError(
-            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}; it must be a 1-D "
-            "array of strings, the window_id of windows.npz (np.asarray(ids, dtype=str))"
-        )
-    if len(ids) != len(prediction):
-        raise PredictionsError(
-            f"{path}: {len(ids)} window ids for {len(prediction)} predictions; give one id per "
-            "prediction (window_id[i] names the window of prediction[i])"
+            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}, {ids.size} window "
+            f"ids for {len(prediction)} predictions; it must be a 1-D array of strings, one per "
+            "prediction (window_id[i] names the window of prediction[i]): windows.npz's ids"
         )
     for key, value in arrays.items():
         if value.dtype.kind not in "US" or value.size != 1:

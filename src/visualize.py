@@ -1,12 +1,8 @@
-"""Draw one evaluation window (the `window`-th of `action`, protocol §3): ground truth, the
-model's fully autoregressive prediction and zero-velocity, as forward kinematics of the
-unnormalised frames (§2.2) with global translation and rotation zeroed (§4.1), y and z swapped
-so the person stands upright. Writes into the run's folder `<action>_w<window>.gif` (.mp4 with
-ffmpeg), 3D stick figures with observed frames grey, and `<action>_w<window>_strip.png`, a
-frame strip as Li et al. (2018) Figure 3.
-
-    python -m src.visualize ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
-    python -m src.visualize model=zero_velocity data=cmu action=basketball window=3 format=mp4
+"""`python -m src.visualize`: the `window`-th evaluation window of `action` (protocol §3) as 3D
+stick figures (`<action>_w<window>.gif`, .mp4 with ffmpeg) and a frame strip as Li et al. (2018)
+Figure 3 (`<action>_w<window>_strip.png`): ground truth, the model's fully autoregressive
+prediction and zero-velocity, by forward kinematics with global translation and rotation zeroed
+(§4.1), y and z swapped so the person stands upright. Usage: `--help`.
 """
 
 import shutil
