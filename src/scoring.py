@@ -112,9 +112,7 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
         others = [s.name for s in SPECS.values() if s.n_columns == F]
         why = f"give raw exp-map frames of {dm.num_features} columns, as windows.npz's"
         if F == dm.pose_dim:
-            why = (
-                f"{F} is the number of normalised columns the models use inside this project; {why}"
-            )
+            why = f"{F} is the number of normalised columns the models use inside; {why}"
         elif others:
             why = f"a file for {others[0]}? score it with data={others[0]}"
         raise PredictionsError(
