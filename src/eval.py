@@ -1,18 +1,7 @@
-"""Evaluate a baseline or a trained checkpoint on the protocol's test windows.
-
-    python -m src.eval model=zero_velocity data=h36m
-    python -m src.eval model=running_avg_2 data=h36m data.allow_partial=true
-    python -m src.eval ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
-    python -m src.eval ckpt_path=... protocol=random      (256 windows per action)
-    python -m src.eval predictions=preds.npz data=h36m    (predictions from any code, of the
-                                                           windows src.export_windows wrote)
-
-Prints the per-action tables in the papers' layout (Euler-angle error, then MPJPE) with the
-published value beside ours where a paper gives one, and writes results.{md,csv,json} into the
-run's own folder under outputs/eval/ (src/results.py's `evaluate`).
+"""`python -m src.eval`: a baseline, a trained checkpoint or a file of predictions from any code
+(src/scoring.py) evaluated on the protocol's test windows; the tables are printed and written as
+results.{md,csv,json} into the run's folder (src/results.py). Usage: `--help`, README.
 """
-
-from __future__ import annotations
 
 from omegaconf import DictConfig
 

@@ -1,15 +1,9 @@
-"""Write the protocol's test windows to a .npz, for a model outside this project.
+"""Write the protocol's test windows src.eval scores, as raw exp-map frames, to a .npz for a
+model outside this project (the arrays: src/data/export.py; scoring them: src/scoring.py).
 
     python -m src.export_windows data=h36m protocol=srnn out=windows.npz
     python -m src.export_windows data=cmu protocol=random data.allow_partial=true out=cmu.npz
-
-The windows are those src.eval scores (src.data: the SRNN selection, the random or strided
-protocol), as raw exp-map frames; the arrays are described in src/data/export.py. Predict their
-`observed` frames with any model, save `prediction` and `window_id`, and score the file with
-`python -m src.eval predictions=preds.npz data=h36m protocol=srnn` (src/scoring.py).
 """
-
-from __future__ import annotations
 
 from pathlib import Path
 
@@ -35,13 +29,11 @@ def export(cfg: DictConfig) -> Path:
     dm = build_test_data(cfg)
     arrays = window_arrays(dm, cfg.data.name)
     atomic_write(out, lambda tmp: np.savez_compressed(tmp, **arrays))  # no half file, if killed
-    n, obs, F = arrays["observed"].shape
     absent = "".join(f"\n  absent: {a} ({why})" for a, why in dm.absent_actions.items())
     print(
-        f"{n} {cfg.data.name} test windows, protocol={dm.eval_protocol} "
-        f"({', '.join(dict.fromkeys(arrays['action']))}): observed ({n}, {obs}, {F}), future "
-        f"({n}, {arrays['future'].shape[1]}, {F}) at {float(arrays['fps']):g} fps{absent}\n"
-        f"written to {out}"
+        f"{len(arrays['window_id'])} {cfg.data.name} test windows, protocol={dm.eval_protocol} "
+        f"({', '.join(dict.fromkeys(arrays['action']))}): observed {arrays['observed'].shape}, "
+        f"future {arrays['future'].shape} at {float(arrays['fps']):g} fps{absent}\nwritten to {out}"
     )
     return out
 

@@ -1,10 +1,7 @@
-"""src.eval's work: a baseline, a trained checkpoint (tested as a MotionPredictor) or a file of
-predictions (src/scoring.py) evaluated on the protocol's test windows. `evaluate` writes the
-tables as results.{md,csv,json} into the run's folder (src/reporting/tables.py's format, which
-`read_results` there reads back for src.plot_errors and src.report).
+"""src.eval's work: a baseline, a trained checkpoint or a file of predictions (src/scoring.py),
+tested as a MotionPredictor; the tables in src/reporting/tables.py's format, which its
+`read_results` reads back for src.plot_errors and src.report.
 """
-
-from __future__ import annotations
 
 import json
 import time
@@ -22,31 +19,23 @@ from src.scoring import score_predictions
 
 
 def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
-    """The Euler and MPJPE tables (src/reporting/tables.py) of an evaluation on `dataset` (the
-    data's own name, e.g. "synthetic": published numbers stand only beside their dataset's)."""
+    """The Euler and MPJPE tables of an evaluation on `dataset` (the data config's name, e.g.
+    "synthetic": published numbers stand only beside results on their own dataset)."""
     published, label = published_for(model_cfg.get("published"), dataset)
     where = f"{model_cfg['name']} on {dataset} ({dm.eval_protocol} protocol, "
     where += f"{len(dm.eval_windows)} windows)"
     mm = "mm" if dm.dataset_name == "h36m" else "units"
-    return [
-        result_table(
-            f"{title}: {where}",
-            metric,
-            unit,
-            dm.actions,
-            module.horizons,
-            results_from_metric(
-                module.last_results[metric], dm.actions, dm.frame_ms, dm.absent_actions
-            ),
-            dm.absent_actions,
-            published if metric == "euler" else None,
-            label,
-        )
-        for metric, title, unit in (
-            ("euler", "Euler-angle error", "rad"),
-            ("mpjpe", "Mean per-joint position error", mm),
-        )
-    ]
+    tables = []
+    for metric, title, unit in (
+        ("euler", "Euler-angle error", "rad"),
+        ("mpjpe", "Mean per-joint position error", mm),
+    ):
+        values = module.last_results[metric]
+        values = results_from_metric(values, dm.actions, dm.frame_ms, dm.absent_actions)
+        paper = published if metric == "euler" else None
+        args = (dm.actions, module.horizons, values, dm.absent_actions, paper, label)
+        tables.append(result_table(f"{title}: {where}", metric, unit, *args))
+    return tables
 
 
 def evaluate(cfg: DictConfig) -> dict:
@@ -57,12 +46,11 @@ def evaluate(cfg: DictConfig) -> dict:
     dm, module = (score_predictions if cfg.get("predictions") else build_for_evaluation)(cfg)
     model_cfg = module.run_info["config"]["model"]
     dataset = module.run_info["config"]["data"]["name"]
-    trainer: L.Trainer = build_trainer(
+    trainer = build_trainer(
         cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
     )
     trainer.test(module, datamodule=dm, verbose=False)
     tables = build_tables(module, dm, model_cfg, dataset)
-
     out_dir = Path(cfg.paths.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     provenance = {
@@ -82,6 +70,5 @@ def evaluate(cfg: DictConfig) -> dict:
     (out_dir / "results.csv").write_text(tables_csv(tables))
     result = {"provenance": provenance, "tables": tables}
     (out_dir / "results.json").write_text(json.dumps(result, indent=2))
-    print(markdown)
-    print(f"\nwritten to {out_dir}")
+    print(f"{markdown}\n\nwritten to {out_dir}")
     return result

@@ -1,26 +1,14 @@
-"""Score a file of predictions made by any code on the protocol's test windows:
-
-    python -m src.export_windows data=h36m protocol=srnn out=windows.npz
-    # ... predict windows.npz's `observed` with any model, save preds.npz ...
-    python -m src.eval predictions=preds.npz data=h36m protocol=srnn
-
-A predictions file is a .npz of ``prediction`` (N, T, F), raw exp-map frames as windows.npz's
-(F = 99 on H3.6M, 117 on CMU), the T = data.future_len (25) frames after each window's
-observed ones, and ``window_id`` (N,), windows.npz's ids in any order. Optional: ``model``, a
-name for the tables (default: the file's name), and windows.npz's ``dataset``, ``protocol`` and
-``data_sha256``, then checked against what is scored. Every window of an action is predicted,
-or none: the action is then reported absent.
-
-Scoring is src.eval's test of a model with the file in place of the network (FilePredictor):
-the same ground truth, Euler-angle error, MPJPE and tables. The columns the protocol ignores
-(std < 1e-4 over the training frames, §2.1) are set to their training mean, as unnormalising
-a network's output does: no model is judged on them.
+"""`src.eval predictions=<file>`: predictions made by any code on the test windows that
+`src.export_windows` wrote, checked and scored (the file format: README, "Scoring a model from
+another code base"). The file stands in for the network in src.eval's test loop (FilePredictor):
+ground truth, metrics and tables are src.eval's own. An action is predicted fully or not at all
+(then reported absent).
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -46,22 +34,14 @@ class PredictionsError(ConfigError):
 
 @dataclass
 class Predictions:
-    """A predictions file as read: the arrays and its optional string entries."""
-
     path: Path
     prediction: np.ndarray  # (N, T, F) float32
     ids: list[str]
-    meta: dict[str, str] = field(default_factory=dict)
-
-    @property
-    def name(self) -> str:
-        return self.meta.get("model") or self.path.stem
+    meta: dict[str, str]  # the OPTIONAL entries it has
 
 
-# ---------------------------------------------------------------------------- the file
 def read_predictions(path: str | Path) -> Predictions:
-    """Read and check what can be checked without the data: the arrays' presence, types and
-    shapes, and finite values."""
+    """Read and check what needs no data: the arrays' presence, types, shapes, finite values."""
     path = Path(path)
     if not path.is_file():
         raise PredictionsError(f"predictions file not found: {path}. Save one with {SAVE}")
@@ -91,39 +71,26 @@ def read_predictions(path: str | Path) -> Predictions:
                     f"can run code); save it as plain numbers or strings, np.asarray(..., "
                     f"dtype={'np.float32' if key == 'prediction' else 'str'})"
                 ) from err
-    prediction, ids = arrays["prediction"], arrays["window_id"]
-    if prediction.dtype.kind not in "fiu":
+    prediction, ids = arrays.pop("prediction"), arrays.pop("window_id")
+    if prediction.dtype.kind not in "fiu" or prediction.ndim != 3 or not len(prediction):
         raise PredictionsError(
-            f"{path}: prediction holds {prediction.dtype} values; it must hold numbers, raw "
-            "exp-map frames (N, T, F)"
+            f"{path}: prediction is a {prediction.dtype} array of shape {prediction.shape}; it "
+            "must hold numbers and it must be (N, T, F) with N >= 1: raw exp-map frames of N "
+            "windows, T future frames each (prediction[i] for window_id[i])"
         )
-    if prediction.ndim != 3 or prediction.shape[0] == 0:
+    if ids.dtype.kind not in "US" or ids.shape != (len(prediction),):
         raise PredictionsError(
-            f"{path}: prediction has shape {prediction.shape}; it must be (N, T, F) with N >= 1: "
-            "N windows, T future frames, F columns (prediction[i] for window_id[i])"
+            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}, {ids.size} window "
+            f"ids for {len(prediction)} predictions; it must be a 1-D array of strings, one per "
+            "prediction (window_id[i] names the window of prediction[i]): windows.npz's ids"
         )
-    if ids.dtype.kind not in "US" or ids.ndim != 1:
-        raise PredictionsError(
-            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}; it must be a 1-D "
-            "array of strings, the window_id of windows.npz (np.asarray(ids, dtype=str))"
-        )
-    if len(ids) != len(prediction):
-        raise PredictionsError(
-            f"{path}: {len(ids)} window ids for {len(prediction)} predictions; give one id per "
-            "prediction (window_id[i] names the window of prediction[i])"
-        )
-    ids = [i.decode() if isinstance(i, bytes) else str(i) for i in ids.tolist()]
-    meta = {}
-    for key in OPTIONAL:
-        if key in arrays:
-            value = arrays[key]
-            if value.dtype.kind not in "US" or value.size != 1:
-                raise PredictionsError(
-                    f"{path}: {key} must be one string (as windows.npz's), got a {value.dtype} "
-                    f"array of shape {value.shape}"
-                )
-            item = value.reshape(()).item()
-            meta[key] = item.decode() if isinstance(item, bytes) else str(item)
+    for key, value in arrays.items():
+        if value.dtype.kind not in "US" or value.size != 1:
+            raise PredictionsError(
+                f"{path}: {key} must be one string (as windows.npz's), got a {value.dtype} "
+                f"array of shape {value.shape}"
+            )
+    ids = ids.astype(str).tolist()
     bad = ~np.isfinite(prediction)
     if bad.any():
         row, frame, col = np.argwhere(bad)[0].tolist()
@@ -132,39 +99,22 @@ def read_predictions(path: str | Path) -> Predictions:
             f"{ids[row]!r} (row {row}), frame {frame}, column {col}; every predicted value must "
             "be finite"
         )
+    meta = {key: str(value.astype(str).item()) for key, value in arrays.items()}
     return Predictions(path, prediction.astype(np.float32, copy=False), ids, meta)
-
-
-def check_intent(preds: Predictions, dataset: str, protocol: str) -> None:
-    """A file that says which dataset and protocol it was made for (windows.npz's entries,
-    carried over) is refused for another one."""
-    export = f"`python -m src.export_windows data={dataset} protocol={protocol}`"
-    for key, ours in (("dataset", dataset), ("protocol", protocol)):
-        theirs = preds.meta.get(key)
-        if theirs is not None and theirs != ours:
-            fix = f"data={theirs}" if key == "dataset" else f"protocol={theirs}"
-            raise PredictionsError(
-                f"{preds.path} holds predictions for {key} {theirs} (its {key!r} entry), not "
-                f"{ours}: score it with {fix}, or predict the windows of {export}"
-            )
 
 
 def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dict[str, str]:
     """Check the file against the datamodule's windows; return the actions it has no
     predictions for, {action: reason}."""
-    path, (_, T, F) = preds.path, preds.prediction.shape
-    protocol = dm.eval_protocol
+    path, (_, T, F), protocol = preds.path, preds.prediction.shape, dm.eval_protocol
     export = f"`python -m src.export_windows data={dataset} protocol={protocol}`"
     if F != dm.num_features:
+        others = [s.name for s in SPECS.values() if s.n_columns == F]
+        why = f"give raw exp-map frames of {dm.num_features} columns, as windows.npz's"
         if F == dm.pose_dim:
-            why = (
-                f"{F} is the number of normalised columns the models use inside this project; "
-                f"give raw exp-map frames of all {dm.num_features} columns, as windows.npz's"
-            )
-        else:
-            others = [s.name for s in SPECS.values() if s.n_columns == F]
-            why = f"a file for {others[0]}? score it with data={others[0]}" if others else ""
-            why = why or f"give raw exp-map frames of {dm.num_features} columns, as windows.npz's"
+            why = f"{F} is the number of normalised columns the models use inside; {why}"
+        elif others:
+            why = f"a file for {others[0]}? score it with data={others[0]}"
         raise PredictionsError(
             f"{path}: prediction has {F} columns per frame, {dataset} frames have "
             f"{dm.num_features}: {why}"
@@ -194,18 +144,17 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
     known = set(ours)
     unknown = [i for i in preds.ids if i not in known]
     if unknown:
-        absent = ""
-        if dm.absent_actions:
-            absent = f"; this data copy cannot evaluate {', '.join(dm.absent_actions)}"
+        absent = ", ".join(dm.absent_actions)
+        absent = f"; this data copy cannot evaluate {absent}" if absent else ""
         raise PredictionsError(
             f"{path}: {len(unknown)} of {len(preds.ids)} window ids are not {dataset} "
             f"protocol={protocol} test windows (e.g. {unknown[0]!r}{absent}): a file for another "
             f"protocol, dataset or data.future_len? Predict the windows of {export}"
         )
-    given, absent = set(preds.ids), {}
+    absent = {}
     for action in dm.actions:
         names = [n for n, w in zip(ours, dm.eval_windows, strict=True) if w.action == action]
-        lacking = [n for n in names if n not in given]
+        lacking = [n for n in names if n not in counts]
         if names and len(lacking) == len(names):
             absent[action] = f"no predictions in {path.name}"
         elif lacking:
@@ -213,8 +162,7 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
                 f"{path}: {len(lacking)} of the {len(names)} {action} windows have no prediction "
                 f"(e.g. {lacking[0]!r}); predict all of them, or none to leave {action} out"
             )
-    checksum = preds.meta.get("data_sha256")
-    if checksum is not None and checksum != data_sha256(dm):
+    if "data_sha256" in preds.meta and preds.meta["data_sha256"] != data_sha256(dm):
         raise PredictionsError(
             f"{path}: its data_sha256 is not that of the windows here, so they were exported "
             f"from other data (another copy of the archives, or other data.* settings): "
@@ -239,11 +187,10 @@ def published_ref(value: str | None, dataset: str) -> dict | None:
     return {"paper": paper, "method": method}
 
 
-# ---------------------------------------------------------------------------- scoring
 class FilePredictor(MotionPredictor):
-    """MotionPredictor's evaluation (src.eval's test loop) with the file's predictions in
-    place of the network's: the same ground truth, metrics and tables, window for window. The
-    columns the protocol ignores are set to their training mean, as unnormalising does."""
+    """src.eval's test loop with the file's predictions in place of the network's. The columns
+    the protocol ignores (std < 1e-4 over the training frames, §2.1) are set to their training
+    mean, as unnormalising a network's output does: no model is judged on them."""
 
     def __init__(self, preds: Predictions, dm: MotionDataModule, dim_rule: str, config: dict):
         super().__init__(
@@ -258,9 +205,8 @@ class FilePredictor(MotionPredictor):
             run_info={"config": config},
         )
         row_of = {name: row for row, name in enumerate(preds.ids)}
-        rows = [row_of[name] for name in window_ids(dm.eval_windows)]
-        prediction = torch.from_numpy(preds.prediction[rows])  # row i: eval window i
-        self.register_buffer("prediction", prediction, persistent=False)
+        rows = [row_of[name] for name in window_ids(dm.eval_windows)]  # row i: eval window i
+        self.register_buffer("prediction", torch.from_numpy(preds.prediction[rows]), False)
 
     def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
         used, mean = self.normalizer.used, self.normalizer.mean
@@ -280,12 +226,21 @@ def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, FilePredictor]
             f"say whose test windows {cfg.predictions} predicts: data=h36m|cmu|synthetic "
             "(and protocol=srnn|random|strided)"
         )
-    dataset = cfg.data.name
-    preds = read_predictions(cfg.predictions)
-    check_intent(preds, dataset, cfg.get("protocol") or cfg.data.eval_protocol)
+    dataset, preds = cfg.data.name, read_predictions(cfg.predictions)
+    # What the file says it was made for, checked before the data are read.
+    protocol = cfg.get("protocol") or cfg.data.eval_protocol
+    for key, ours in (("dataset", dataset), ("protocol", protocol)):
+        theirs = preds.meta.get(key, ours)
+        if theirs != ours:
+            raise PredictionsError(
+                f"{preds.path} holds predictions for {key} {theirs} (its {key!r} entry), not "
+                f"{ours}: score it with {'data' if key == 'dataset' else key}={theirs}, or "
+                f"predict the windows of `python -m src.export_windows data={dataset} "
+                f"protocol={protocol}`"
+            )
     published = published_ref(cfg.get("published"), dataset)
     dm = build_test_data(cfg)
     dm.leave_out(match_windows(preds, dm, dataset))
-    model = {"name": preds.name, "published": published}
+    model = {"name": preds.meta.get("model") or preds.path.stem, "published": published}
     config = {"model": model, "data": {"name": dataset}}
     return dm, FilePredictor(preds, dm, cfg.metrics.dim_rule, config)
