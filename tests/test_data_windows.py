@@ -15,7 +15,6 @@ from src.data.windows import (
     cmu_test_starts,
     random_starts,
     srnn_h36m_starts,
-    start_bounds,
     strided_starts,
 )
 
@@ -71,8 +70,9 @@ def test_cmu_starts_depend_on_future_len_and_stay_in_range():
 def test_training_ranges_follow_protocol():
     # H3.6M [16, n - (50 + T_out)), CMU [0, n - (50 + T_out)) (protocol §1.4, §1.5).
     assert TRAIN_START_LOW == {"h36m": 16, "cmu": 0}
-    assert start_bounds(200, 75, TRAIN_START_LOW["h36m"]) == (16, 125)
-    assert start_bounds(82, 75, TRAIN_START_LOW["cmu"]) == (0, 7)
+    every = [(0, s) for s in range(16, 125)]
+    assert strided_starts([200], 75, 1, TRAIN_START_LOW["h36m"]) == every
+    assert strided_starts([82], 75, 1, TRAIN_START_LOW["cmu"]) == [(0, s) for s in range(7)]
 
 
 def test_random_starts_are_seeded_bounded_and_skip_short_sequences():
