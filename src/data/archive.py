@@ -1,14 +1,13 @@
 """Find, download (only when asked) and unpack a dataset archive; report missing files.
 
-Order of preference in :func:`ensure_dataset`:
-1. the unpacked layout already under ``data_dir`` (``h3.6m/dataset`` or ``cmu_mocap``);
-2. ``archive``: a path to the zip (or to the folder holding it), or an http(s) URL, which is then
-   downloaded into ``data_dir`` (the only case where anything is downloaded: the user asked);
-3. ``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``.
+:func:`ensure_dataset` uses, in this order: the unpacked folder under ``data_dir``
+(``h3.6m/dataset`` or ``cmu_mocap``); ``archive``, a zip, the folder holding it or an http(s)
+URL (then downloaded into ``data_dir``: the only download, the user asked for it); then
+``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``.
 
-Unpacking writes into a temporary folder inside ``data_dir`` and renames it into place at the end,
-so an interrupted unpack never looks like data. Member paths are checked: absolute paths, ``..``
-and symbolic links are refused.
+Unpacking writes into a temporary folder inside ``data_dir`` renamed into place at the end, so
+an interrupted unpack never looks like data. Absolute member paths, ``..`` and symbolic links
+are refused.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ import zlib
 from pathlib import Path, PurePosixPath
 
 from src.data.errors import DataError, DataNotFoundError
-from src.data.layout import SPECS, DatasetSpec, is_unpacked
+from src.data.layout import SPECS, DatasetSpec
 
 log = logging.getLogger(__name__)
 
@@ -33,17 +32,7 @@ DATA_DIR_ENV = "MOTION_DATA_DIR"
 
 def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path:
     """``data_dir`` if given, else ``$MOTION_DATA_DIR``, else ``./data``."""
-    if data_dir is None or str(data_dir) == "":
-        data_dir = os.environ.get(DATA_DIR_ENV) or "data"
-    return Path(data_dir).expanduser()
-
-
-def _spec(dataset: str | DatasetSpec) -> DatasetSpec:
-    if isinstance(dataset, DatasetSpec):
-        return dataset
-    if dataset not in SPECS:
-        raise DataError(f"unknown dataset {dataset!r}; valid: {', '.join(SPECS)}")
-    return SPECS[dataset]
+    return Path(data_dir or os.environ.get(DATA_DIR_ENV) or "data").expanduser()
 
 
 def ensure_dataset(
@@ -52,26 +41,21 @@ def ensure_dataset(
     archive: str | os.PathLike | None = None,
     archive_dir: str | os.PathLike | None = None,
 ) -> Path:
-    """Make sure the dataset is unpacked under ``data_dir``; return ``data_dir``.
-
-    Raises :class:`DataNotFoundError` saying what to download and where to put it when neither
-    the unpacked folder nor an archive can be found.
-    """
-    spec = _spec(dataset)
+    """Make sure the dataset is unpacked under ``data_dir`` and return ``data_dir``; raise
+    a DataNotFoundError saying what to download and where to put it if nothing is found."""
+    spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     data_dir = resolve_data_dir(data_dir)
-    if is_unpacked(data_dir, spec):
-        return data_dir
-
-    zip_path = _find_archive(spec, data_dir, archive, archive_dir)
-    log.info("unpacking %s into %s", zip_path, data_dir)
-    unpack_archive(zip_path, data_dir, spec)
+    if not (data_dir / spec.marker).is_dir():
+        zip_path = _find_archive(spec, data_dir, archive, archive_dir)
+        log.info("unpacking %s into %s", zip_path, data_dir)
+        unpack_archive(zip_path, data_dir, spec)
     return data_dir
 
 
 def _find_archive(
     spec: DatasetSpec, data_dir: Path, archive: str | os.PathLike | None, archive_dir
 ) -> Path:
-    if archive is not None and str(archive) != "":
+    if archive:
         text = str(archive)
         if text.startswith(("http://", "https://")):
             return download(text, data_dir / spec.archive_name)
@@ -89,7 +73,7 @@ def _find_archive(
     searched, absent = [], []
     env = os.environ.get(ARCHIVES_ENV)
     for folder, name in ((archive_dir, "data.archive_dir"), (env, ARCHIVES_ENV), (data_dir, None)):
-        if folder is None or str(folder) == "":
+        if not folder:
             continue
         candidate = Path(folder).expanduser() / spec.archive_name
         if str(candidate) in searched:  # data.archive_dir defaults to $MOTION_ARCHIVES
@@ -142,23 +126,9 @@ def download(url: str, dest: Path) -> Path:
     return dest
 
 
-def _member_path(name: str, root: str, archive: Path) -> str | None:
-    """Member path relative to data_dir (from ``root`` on), None to skip; refuse unsafe names."""
-    name = name.replace("\\", "/")
-    parts = PurePosixPath(name).parts
-    if name.startswith("/") or (parts and ":" in parts[0]) or ".." in parts:
-        raise DataError(
-            f"{archive}: unsafe member path {name!r} (absolute or with '..'); refusing to unpack "
-            "(fix: use the archive as distributed)"
-        )
-    if root not in parts:
-        return None  # e.g. __MACOSX/ or a README next to the dataset folder
-    return "/".join(parts[parts.index(root) :])
-
-
 def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, dataset) -> None:
     """Safely unpack the dataset folder of ``archive`` into ``data_dir`` (temp dir + rename)."""
-    spec = _spec(dataset)
+    spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     archive, data_dir = Path(archive), Path(data_dir)
     # is_zipfile() answers False for a file it cannot open, which would blame the archive.
     try:
@@ -201,7 +171,7 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
         try:
             os.rename(tmp / spec.root, target)
         except OSError:
-            if not is_unpacked(data_dir, spec):
+            if not (data_dir / spec.marker).is_dir():
                 raise DataError(
                     f"cannot move the unpacked data to {target}: the folder exists but holds no "
                     f"{spec.marker}/ (fix: delete {target} and run again)"
@@ -218,21 +188,28 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
 
 
 def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
-    """Write the dataset members of ``archive`` under ``tmp``; a member whose bytes do not
-    match its CRC (or do not decompress) raises a DataError naming it."""
+    """Write the dataset members of ``archive`` under ``tmp``; a member that does not match
+    its CRC (or does not decompress) raises a DataError naming it."""
     member = None  # the member being read, named when the archive turns out damaged
     try:
         with zipfile.ZipFile(archive) as zf:
             for info in zf.infolist():
-                rel = _member_path(info.filename, spec.root, archive)
-                if rel is None or info.is_dir():
+                name = info.filename.replace("\\", "/")
+                parts = PurePosixPath(name).parts
+                if name.startswith("/") or (parts and ":" in parts[0]) or ".." in parts:
+                    raise DataError(
+                        f"{archive}: unsafe member path {name!r} (absolute or with '..'); "
+                        "refusing to unpack (fix: use the archive as distributed)"
+                    )
+                # Members outside the dataset folder (__MACOSX/, a README) are skipped.
+                if spec.root not in parts or info.is_dir():
                     continue
                 if stat.S_ISLNK(info.external_attr >> 16):
                     raise DataError(
                         f"{archive}: member {info.filename!r} is a symbolic link; refusing to "
                         "unpack (fix: use the archive as distributed)"
                     )
-                dest = tmp / rel
+                dest = tmp.joinpath(*parts[parts.index(spec.root) :])
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 member = info.filename
                 with zf.open(info) as src, open(dest, "wb") as out:
