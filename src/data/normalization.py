@@ -2,12 +2,9 @@
 
 Statistics come from the raw 50 Hz frames of all loaded training files (§2.1): population mean
 and std per column; a column is *used* iff its std >= 1e-4, and the std of ignored columns is
-reset to 1. ``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts the used
-columns back and fills the ignored ones with the training mean, exactly as the reference's
-zero-fill-then-scale does (§2.2).
-
-The module holds its statistics as buffers, so it is saved in (and restored from) every
-checkpoint of the LightningModule that owns it.
+reset to 1. ``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts them back
+and fills the ignored ones with the training mean, as the reference's zero-fill-then-scale does
+(§2.2). The statistics are buffers, so every checkpoint of the owning module holds them.
 """
 
 from __future__ import annotations
@@ -50,24 +47,20 @@ class Normalizer(nn.Module):
     def from_sequences(
         cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD
     ) -> Normalizer:
-        """Same statistics as ``from_frames(np.concatenate(sequences))``, without the copy.
-
-        Two passes in float64 (mean, then squared deviations), so the population std is exact
-        to float32 precision even for near-constant columns, which decide the used set.
-        """
+        """``from_frames(np.concatenate(sequences))`` without the copy. Two passes in float64
+        (mean, then squared deviations): the std is exact to float32 precision even for the
+        near-constant columns, which decide the used set."""
         seqs = [np.asarray(s) for s in sequences]
         if not seqs or any(s.ndim != 2 for s in seqs) or len({s.shape[1] for s in seqs}) != 1:
             raise DataError(
                 "Normalizer statistics need one or more 2-d arrays (frames, features) with the "
                 f"same number of columns, got shapes {[s.shape for s in seqs]}"
             )
-        n = sum(s.shape[0] for s in seqs)
+        n = sum(len(s) for s in seqs)
         if n == 0:
             raise DataError("Normalizer statistics need at least one training frame, got none")
-        total = sum(s.sum(axis=0, dtype=np.float64) for s in seqs)
-        mean = total / n
-        sq = sum(np.square(s.astype(np.float64) - mean).sum(axis=0) for s in seqs)
-        std = np.sqrt(sq / n)
+        mean = sum(s.sum(axis=0, dtype=np.float64) for s in seqs) / n
+        std = np.sqrt(sum(np.square(s.astype(np.float64) - mean).sum(axis=0) for s in seqs) / n)
         if not (np.isfinite(mean).all() and np.isfinite(std).all()):
             raise DataError(
                 "Normalizer statistics are not finite: the training frames hold NaN/inf"
@@ -79,11 +72,8 @@ class Normalizer(nn.Module):
     @classmethod
     def empty(cls, num_features: int) -> Normalizer:
         """Identity statistics of the right shape, to be overwritten by ``load_state_dict``."""
-        return cls(
-            torch.zeros(num_features),
-            torch.ones(num_features),
-            torch.ones(num_features, dtype=torch.bool),
-        )
+        ones = torch.ones(num_features)
+        return cls(torch.zeros(num_features), ones, ones.bool())
 
     @property
     def num_features(self) -> int:
@@ -109,8 +99,7 @@ class Normalizer(nn.Module):
     def normalize(self, x: Tensor) -> Tensor:
         """(..., F) raw frames -> (..., D) normalised used dimensions (§2.1)."""
         self._check(x, self.num_features, "normalize")
-        mean = self.mean.to(device=x.device, dtype=x.dtype)
-        std = self.std.to(device=x.device, dtype=x.dtype)
+        mean, std = self.mean.to(x), self.std.to(x)
         return ((x - mean) / std).index_select(-1, self.dim_used.to(x.device))
 
     def unnormalize(self, z: Tensor) -> Tensor:
@@ -118,12 +107,6 @@ class Normalizer(nn.Module):
         self._check(z, self.pose_dim, "unnormalize")
         full = z.new_zeros(*z.shape[:-1], self.num_features)
         full = full.index_copy(-1, self.dim_used.to(z.device), z)
-        mean = self.mean.to(device=z.device, dtype=z.dtype)
-        std = self.std.to(device=z.device, dtype=z.dtype)
-        return full * std + mean
+        return full * self.std.to(z) + self.mean.to(z)
 
-    def forward(self, x: Tensor) -> Tensor:
-        return self.normalize(x)
-
-    def extra_repr(self) -> str:
-        return f"num_features={self.num_features}, pose_dim={self.pose_dim}"
+    forward = normalize
