@@ -1,10 +1,10 @@
 """A small synthetic dataset in the exact H3.6M text format, for tests and smoke runs.
 
 Files go to ``<root>/h3.6m/dataset/S{subject}/{action}_{1,2}.txt``: 99 comma-separated numbers
-with 7 decimals per line, LF endings, like the real archive. Only the 54 columns that are used on
-the real data (protocol §2.1) move; the other 45 are exactly 0, so the Normalizer finds D = 54
-as on H3.6M. The motion is smooth: per-action frequencies, per-subject/subaction phases, two
-harmonics and a little noise, so a model can actually learn to continue it.
+with 7 decimals per line, LF endings, like the real archive. Only the 54 columns used on the
+real data (protocol §2.1) move, the other 45 are exactly 0, so the Normalizer finds D = 54 as on
+H3.6M. The motion is smooth (per-action frequencies, per-sequence phases, two harmonics, a little
+noise), so a model can learn to continue it.
 """
 
 from __future__ import annotations
@@ -21,19 +21,10 @@ from src.data.errors import DataError
 from src.data.h36m import H36MDataModule
 from src.data.layout import H36M, H36M_ACTIONS, h36m_files
 
-# The 54 used columns on H3.6M (protocol §2.1), as inclusive ranges.
-_USED_RANGES = [
-    (0, 9),
-    (12, 15),
-    (21, 24),
-    (27, 30),
-    (36, 47),
-    (51, 57),
-    (60, 62),
-    (75, 81),
-    (84, 86),
-]
-H36M_USED_COLUMNS: tuple[int, ...] = tuple(c for lo, hi in _USED_RANGES for c in range(lo, hi + 1))
+# The 54 used columns on H3.6M (protocol §2.1).
+H36M_USED_COLUMNS: tuple[int, ...] = tuple(
+    np.r_[0:10, 12:16, 21:25, 27:31, 36:48, 51:58, 60:63, 75:82, 84:87].tolist()
+)
 SYNTHETIC_ACTIONS = ("walking", "eating", "smoking")
 RAW_FPS = 50
 
@@ -65,11 +56,9 @@ def write_synthetic_h36m(
     raw_frames: int = 400,
     seed: int = 0,
 ) -> list[Path]:
-    """Write the synthetic files under ``root`` (the data_dir); return their paths.
-
-    A file that already holds exactly these frames is left alone (so its parsed cache stays
-    valid); one written with other settings (``raw_frames``, ``seed``) is replaced.
-    """
+    """Write the synthetic files under ``root`` (the data_dir); return their paths. A file that
+    already holds exactly these frames is left alone (its parsed cache stays valid); one
+    written with other settings (``raw_frames``, ``seed``) is replaced."""
     if raw_frames < 2:
         raise DataError(f"raw_frames must be >= 2, got {raw_frames}")
     root = Path(root)
@@ -91,11 +80,9 @@ def write_synthetic_h36m(
 
 
 class SyntheticDataModule(H36MDataModule):
-    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic`` (written when absent).
-
-    Defaults: train subject 1, test subject 5, actions walking, eating, smoking. Every other
-    argument is passed to :class:`H36MDataModule` (archive arguments are ignored).
-    """
+    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic`` (written when absent):
+    train subject 1, test subject 5, actions walking, eating, smoking by default. Every other
+    argument is H36MDataModule's (archive arguments are ignored)."""
 
     def __init__(
         self,
