@@ -1,13 +1,10 @@
 """Find, download (only when asked) and unpack a dataset archive; report missing files.
 
-:func:`ensure_dataset` uses, in this order: the unpacked folder under ``data_dir``
-(``h3.6m/dataset`` or ``cmu_mocap``); ``archive``, a zip, the folder holding it or an http(s)
-URL (then downloaded into ``data_dir``: the only download, the user asked for it); then
-``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``.
-
-Unpacking writes into a temporary folder inside ``data_dir`` renamed into place at the end, so
-an interrupted unpack never looks like data. Absolute member paths, ``..`` and symbolic links
-are refused.
+:func:`ensure_dataset` uses, in this order: the unpacked folder under ``data_dir``; ``archive``,
+a zip, its folder or an http(s) URL (downloaded into ``data_dir``: the only download, asked for);
+``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``. It
+unpacks into a temporary folder renamed into place at the end, so an interrupted unpack never
+looks like data; absolute member paths, ``..`` and symbolic links are refused.
 """
 
 from __future__ import annotations
@@ -21,7 +18,7 @@ import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
 
-from src.data.errors import DataError, DataNotFoundError
+from src.data.errors import DataError
 from src.data.layout import SPECS, DatasetSpec
 
 log = logging.getLogger(__name__)
@@ -36,13 +33,11 @@ def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path:
 
 
 def ensure_dataset(
-    dataset: str | DatasetSpec,
-    data_dir: str | os.PathLike | None,
-    archive: str | os.PathLike | None = None,
-    archive_dir: str | os.PathLike | None = None,
+    dataset: str | DatasetSpec, data_dir: str | os.PathLike | None, archive=None, archive_dir=None
 ) -> Path:
-    """Make sure the dataset is unpacked under ``data_dir`` and return ``data_dir``; raise
-    a DataNotFoundError saying what to download and where to put it if nothing is found."""
+    """Make sure the dataset is unpacked under ``data_dir`` and return ``data_dir``; raise a
+    DataError saying what to download and where to put it if nothing is found. ``archive``: a
+    zip's path, its folder or URL; ``archive_dir``: a folder that may hold the zip."""
     spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     data_dir = resolve_data_dir(data_dir)
     if not (data_dir / spec.marker).is_dir():
@@ -52,20 +47,16 @@ def ensure_dataset(
     return data_dir
 
 
-def _find_archive(
-    spec: DatasetSpec, data_dir: Path, archive: str | os.PathLike | None, archive_dir
-) -> Path:
+def _find_archive(spec: DatasetSpec, data_dir: Path, archive, archive_dir) -> Path:
+    if archive and str(archive).startswith(("http://", "https://")):
+        return download(str(archive), data_dir / spec.archive_name)
     if archive:
-        text = str(archive)
-        if text.startswith(("http://", "https://")):
-            return download(text, data_dir / spec.archive_name)
-        path = Path(text).expanduser()
-        if path.is_dir():
-            path = path / spec.archive_name
+        path = Path(archive).expanduser()
+        path = path / spec.archive_name if path.is_dir() else path
         if not path.is_file():
             # Name the file looked for: a folder given as data.archive exists, its zip does not.
-            raise DataNotFoundError(
-                f"data.archive={text}: {path} does not exist (fix: point data.archive to "
+            raise DataError(
+                f"data.archive={archive}: {path} does not exist (fix: point data.archive to "
                 f"{spec.archive_name} or to the folder that holds it; {_how_to_get(spec)})"
             )
         return path
@@ -85,7 +76,7 @@ def _find_archive(
             name = ARCHIVES_ENV if str(folder) == str(env) else name
             absent.append(f"{name}={folder}: that folder does not exist")
 
-    raise DataNotFoundError(
+    raise DataError(
         f"{spec.name} data not found: there is no folder {data_dir / spec.marker} and no archive "
         f"(looked for {', '.join(searched)}){''.join(f'; {a}' for a in absent)}.\n"
         f"Fix: {_how_to_get(spec)}, then either\n"
@@ -112,7 +103,7 @@ def download(url: str, dest: Path) -> Path:
             shutil.copyfileobj(response, out, 1 << 20)
     except OSError as exc:  # URLError and HTTPError are OSErrors
         part.unlink(missing_ok=True)
-        raise DataNotFoundError(
+        raise DataError(
             f"could not download {url}: {exc} (fix: download it by hand and pass "
             f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
         ) from None
@@ -152,7 +143,13 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
     tmp = data_dir / f".{spec.root}.unpacking-{os.getpid()}"
     try:
         data_dir.mkdir(parents=True, exist_ok=True)
-        _remove_stale_temps(data_dir, spec)
+        for old in data_dir.glob(f".{spec.root}.unpacking-*"):  # left by killed unpacks
+            try:
+                os.kill(int(old.name.rsplit("-", 1)[1]), 0)
+            except (ValueError, ProcessLookupError):  # its process is gone
+                shutil.rmtree(old, ignore_errors=True)
+            except PermissionError:
+                pass  # a live process of another user
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
     except OSError as exc:  # read-only, not a folder, or a file in the way
@@ -196,19 +193,15 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
             for info in zf.infolist():
                 name = info.filename.replace("\\", "/")
                 parts = PurePosixPath(name).parts
-                if name.startswith("/") or (parts and ":" in parts[0]) or ".." in parts:
+                absolute = name.startswith("/") or (parts and ":" in parts[0])
+                if absolute or ".." in parts or stat.S_ISLNK(info.external_attr >> 16):
                     raise DataError(
-                        f"{archive}: unsafe member path {name!r} (absolute or with '..'); "
-                        "refusing to unpack (fix: use the archive as distributed)"
+                        f"{archive}: unsafe member path {name!r} (absolute, with '..' or a "
+                        "symbolic link); refusing to unpack (fix: use the archive as distributed)"
                     )
                 # Members outside the dataset folder (__MACOSX/, a README) are skipped.
                 if spec.root not in parts or info.is_dir():
                     continue
-                if stat.S_ISLNK(info.external_attr >> 16):
-                    raise DataError(
-                        f"{archive}: member {info.filename!r} is a symbolic link; refusing to "
-                        "unpack (fix: use the archive as distributed)"
-                    )
                 dest = tmp.joinpath(*parts[parts.index(spec.root) :])
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 member = info.filename
@@ -225,26 +218,13 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
         ) from None
 
 
-def _remove_stale_temps(data_dir: Path, spec: DatasetSpec) -> None:
-    """Delete temp folders left by killed unpacks (only those whose process is gone)."""
-    for old in data_dir.glob(f".{spec.root}.unpacking-*"):
-        try:
-            os.kill(int(old.name.rsplit("-", 1)[1]), 0)
-        except (ValueError, ProcessLookupError):
-            shutil.rmtree(old, ignore_errors=True)
-        except PermissionError:
-            pass  # a live process of another user
-
-
-def check_missing(
-    spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool
-) -> None:
+def check_missing(spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool):
     """Full protocol: raise listing every missing file. Partial mode: the datamodule's setup
     warns, saying what it reads and does without them."""
     if not missing or allow_partial:
         return
     listing = "\n  ".join(missing)
-    raise DataNotFoundError(
+    raise DataError(
         f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
         f"  {listing}\n"
         f"The full protocol needs all of them. Fix: get the complete archive "

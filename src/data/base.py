@@ -1,9 +1,7 @@
-"""The LightningDataModule shared by H3.6M and CMU.
-
-Pipeline (each step cites the protocol): text files -> (cache) raw 50 Hz float32 arrays ->
-Normalizer from the raw training frames (§2.1) -> even-frame downsampling (§1.3) -> normalised
-used dimensions -> training windows drawn per §1.4 / §1.5 and a fixed list of evaluation
-windows (§3; or the project's ``random`` / ``strided`` protocols).
+"""The LightningDataModule shared by H3.6M and CMU: text files -> (cache) raw 50 Hz float32
+arrays -> Normalizer from the raw training frames (protocol §2.1) -> even-frame downsampling
+(§1.3) -> normalised used dimensions -> training windows drawn per §1.4 / §1.5 and a fixed list
+of evaluation windows (§3; or the project's ``random`` / ``strided`` protocols).
 
 With a partial copy of the data, ``allow_partial=False`` (the full protocol) raises listing every
 missing file; ``allow_partial=True`` trains on what exists and lists each action that cannot be
@@ -14,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -37,9 +36,8 @@ EVAL_PROTOCOLS = ("srnn", "random", "strided")
 
 @dataclass(frozen=True)
 class EvalWindow:
-    """Frames [start, start + observed_len + future_len) of ``sequence``, the file key
-    (``S5/walking_1``, ``test/walking/walking_1``); ``subaction`` is the H3.6M subaction (1 or
-    2) or the CMU file number k."""
+    """Frames [start, start + window_len) of ``sequence`` (the file key, ``S5/walking_1``);
+    ``subaction`` is the H3.6M subaction (1 or 2) or the CMU file number k."""
 
     action: str
     sequence: str
@@ -51,11 +49,11 @@ def window_ids(windows: Iterable[EvalWindow]) -> list[str]:
     """One name per window, ``<sequence>@<start>`` (``S5/walking_1@1087``), the start counted in
     downsampled frames (protocol §1.3). The random protocol may draw a window twice: its k-th
     repeat is ``...@start#k`` (k = 2, 3, ...), so that every window has a name of its own."""
-    seen: dict[str, int] = {}
+    seen: Counter[str] = Counter()
     out = []
     for w in windows:
         name = f"{w.sequence}@{w.start}"
-        seen[name] = seen.get(name, 0) + 1
+        seen[name] += 1
         out.append(name if seen[name] == 1 else f"{name}#{seen[name]}")
     return out
 
@@ -67,13 +65,15 @@ def _positive(name: str, value, minimum: int = 1) -> int:
 
 
 class MotionDataModule(L.LightningDataModule):
-    """Loading, normalisation and windowing; subclasses say which files and test windows."""
+    """Loading, normalisation and windowing. Subclasses give ``expected_files()``, the (training,
+    test) FileEntry lists of the configured actions, and ``protocol_windows(lengths)``, the
+    reference test windows of one action as (index into its test files, start) pairs."""
 
     spec: DatasetSpec
+    dataset_name: str  # spec.name; a class attribute, read from the class by load_trained
     conv_padding: str  # "same" on H3.6M, "valid" on CMU (protocol §6.7)
-    # Milliseconds per downsampled frame, for the horizon labels: 40 ms (25 fps) on H3.6M and,
-    # as in the reference's tables, on CMU, whose files are most likely 30 Hz after
-    # downsampling (protocol §1.5, [L] issue #4).
+    # Milliseconds per downsampled frame, for the horizon labels: 40 ms (25 fps) on H3.6M and, as
+    # the reference's tables have it, on CMU, most likely 30 Hz (protocol §1.5, [L] issue #4).
     frame_ms: int = 40
 
     def __init__(
@@ -98,9 +98,12 @@ class MotionDataModule(L.LightningDataModule):
         super().__init__()
         self.data_dir = resolve_data_dir(data_dir)
         self.archive, self.archive_dir = archive, archive_dir
+        self.num_features = self.spec.n_columns
         self.actions = parse_actions(actions, self.spec)
+        self.num_actions = len(self.actions)
         self.observed_len = _positive("observed_len", observed_len)
         self.future_len = _positive("future_len", future_len)
+        self.window_len = self.observed_len + self.future_len
         self.batch_size = _positive("batch_size", batch_size)
         self.eval_batch_size = _positive("eval_batch_size", eval_batch_size)
         self.steps_per_epoch = _positive("steps_per_epoch", steps_per_epoch)
@@ -119,15 +122,11 @@ class MotionDataModule(L.LightningDataModule):
         self.seed = _positive("seed", seed, 0)
         self.draws_per_step = 1  # 2 with a discriminator: set by the LightningModule
         self.resume_iteration = 0  # set by src.train when it resumes a checkpoint
-
-        # Filled by setup().
         self.normalizer: Normalizer | None = None
         self.eval_windows: list[EvalWindow] = []
         self.absent_actions: dict[str, str] = {}
         self.missing_files: list[str] = []
         self.untrained_actions: list[str] = []  # configured actions without any training file
-        self._test_raw: dict[str, np.ndarray] = {}
-        self._test_entries: dict[str, list[FileEntry]] = {}
         self._given_normalizer: Normalizer | None = None
         self._stage: str | None = None
 
@@ -140,33 +139,9 @@ class MotionDataModule(L.LightningDataModule):
     def _eval_only(self) -> bool:
         return self._given_normalizer is not None and self._stage != "fit"
 
-    def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
-        """(training files, test files) of the configured actions (and subjects)."""
-        raise NotImplementedError
-
-    def protocol_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
-        """The reference test windows of one action: (index into its test files, start)."""
-        raise NotImplementedError
-
-    @property
-    def dataset_name(self) -> str:
-        return self.spec.name
-
-    @property
-    def num_actions(self) -> int:
-        return len(self.actions)
-
-    @property
-    def num_features(self) -> int:
-        return self.spec.n_columns
-
     @property
     def pose_dim(self) -> int:
         return self._require_setup().pose_dim
-
-    @property
-    def window_len(self) -> int:
-        return self.observed_len + self.future_len
 
     def _require_setup(self) -> Normalizer:
         if self.normalizer is None:
@@ -174,8 +149,6 @@ class MotionDataModule(L.LightningDataModule):
                 f"{type(self).__name__}: call prepare_data() and setup() before using the data"
             )
         return self.normalizer
-
-    # ---- Lightning hooks --------------------------------------------------------------------
 
     def prepare_data(self) -> None:
         """Unpack the archive if needed and parse every present file into the cache."""
@@ -231,17 +204,12 @@ class MotionDataModule(L.LightningDataModule):
             [raw[e.relpath] for e in train]
         )
         label = {a: i for i, a in enumerate(self.actions)}
-        self._test_raw = {e.key: raw[e.relpath][::2].copy() for e in present_test}
-
-        def prepare(entry: FileEntry) -> torch.Tensor:
-            frames = torch.from_numpy(raw[entry.relpath][::2].copy())  # even raw frames, §1.3
-            return normalizer.normalize(frames)
-
-        train_seqs = [prepare(e) for e in train]
+        frames = [torch.from_numpy(raw[e.relpath][::2].copy()) for e in train]  # even frames, §1.3
+        seqs = [normalizer.normalize(f) for f in frames]
+        self._train_lengths = [len(s) for s in seqs]
         self._train_dataset = WindowDataset(
-            train_seqs, [label[e.action] for e in train], self.observed_len, self.future_len
+            seqs, [label[e.action] for e in train], self.observed_len, self.future_len
         )
-        self._train_lengths = [len(s) for s in train_seqs]
         trained = {e.action for e in train}
         self.untrained_actions = [a for a in self.actions if a not in trained]
         if self.untrained_actions and not self._eval_only:
@@ -253,9 +221,7 @@ class MotionDataModule(L.LightningDataModule):
         # Evaluation windows, action by action in canonical order.
         self.absent_actions, self.eval_windows = {}, []
         self._test_entries = {a: [e for e in test if e.action == a] for a in self.actions}
-        eval_seqs: list[torch.Tensor] = []
-        eval_labels: list[int] = []
-        pairs: list[tuple[int, int]] = []
+        self._test_raw = {e.key: raw[e.relpath][::2].copy() for e in present_test}
         for action, entries in self._test_entries.items():
             absent = [e.relpath for e in entries if e.relpath in missing]
             if absent:
@@ -266,13 +232,9 @@ class MotionDataModule(L.LightningDataModule):
             except DataError as exc:
                 self.absent_actions[action] = f"test sequences too short ({exc})"
                 continue
-            first = len(eval_seqs)
-            eval_seqs.extend(prepare(e) for e in entries)
-            eval_labels.extend(label[action] for _ in entries)
             self.eval_windows += [
                 EvalWindow(action, entries[i].key, entries[i].index, s) for i, s in windows
             ]
-            pairs += [(first + i, s) for i, s in windows]
         if self.absent_actions:
             log.warning(
                 "%d action(s) cannot be evaluated and are reported as absent: %s",
@@ -284,16 +246,16 @@ class MotionDataModule(L.LightningDataModule):
                 f"no configured action can be evaluated: {self.absent_actions} (fix: provide the "
                 "test files listed above)"
             )
-        self._eval_dataset = WindowDataset(
-            eval_seqs, eval_labels, self.observed_len, self.future_len, pairs
-        )
+        seqs = {k: normalizer.normalize(torch.from_numpy(f)) for k, f in self._test_raw.items()}
+        labels = {e.key: label[e.action] for e in present_test}
+        pairs = [(w.sequence, w.start) for w in self.eval_windows]
+        self._eval_dataset = WindowDataset(seqs, labels, self.observed_len, self.future_len, pairs)
         self.normalizer = normalizer
 
     def leave_out(self, absent: dict[str, str]) -> None:
         """Evaluate without the windows of these actions, reported absent with the reason."""
-        keep = [i for i, w in enumerate(self.eval_windows) if w.action not in absent]
-        self.eval_windows = [self.eval_windows[i] for i in keep]
-        self._eval_dataset.windows = [self._eval_dataset.windows[i] for i in keep]
+        self.eval_windows = [w for w in self.eval_windows if w.action not in absent]
+        self._eval_dataset.windows = [(w.sequence, w.start) for w in self.eval_windows]
         self.absent_actions.update(absent)
 
     def _action_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
@@ -308,8 +270,6 @@ class MotionDataModule(L.LightningDataModule):
         if not windows:
             raise DataError(f"no {self.window_len}-frame window fits in lengths {lengths}")
         return windows
-
-    # ---- loaders ----------------------------------------------------------------------------
 
     def _loader(self, dataset: WindowDataset, **kwargs) -> DataLoader:
         trainer = getattr(self, "trainer", None)

@@ -1,6 +1,5 @@
-"""Parse each motion text file once and keep a binary copy under ``<data_dir>/cache/<dataset>/``.
-
-One ``.npy`` per source file plus ``manifest.json`` with each source's size and ``mtime_ns``: a
+"""Parse each motion text file once and keep a binary copy under ``<data_dir>/cache/<dataset>/``:
+one ``.npy`` per source file plus ``manifest.json`` with each source's size and ``mtime_ns``; a
 changed, new or vanished source updates just its own entry. Every write goes to a temporary file
 renamed into place, so a killed run leaves the old or the new file, never a torn one; a cache
 file that does not read back with the right shape is simply parsed again.
@@ -54,9 +53,7 @@ def load_sequences(
 
     writable = True
     if todo:
-        log.info(
-            "parsing %d %s text file(s); cached afterwards in %s", len(todo), spec.name, folder
-        )
+        log.info("parsing %d %s text file(s) into the cache %s", len(todo), spec.name, folder)
         t0 = time.perf_counter()
     for rel, st in todo:
         # stat taken before reading: if the file changes while we read it, the entry is stale
@@ -71,12 +68,7 @@ def load_sequences(
                 writable = False
                 log.warning("cannot write the cache in %s (%s); parsing every time", folder, exc)
                 continue
-            entries[rel] = {
-                "size": st.st_size,
-                "mtime_ns": st.st_mtime_ns,
-                "frames": int(arr.shape[0]),
-                "npy": npy,
-            }
+            entries[rel] = dict(size=st.st_size, mtime_ns=st.st_mtime_ns, frames=len(arr), npy=npy)
     if todo:
         log.info("parsed %d file(s) in %.1f s", len(todo), time.perf_counter() - t0)
 

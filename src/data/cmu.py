@@ -15,7 +15,7 @@ class CMUDataModule(MotionDataModule):
     VALID convolution padding (§6.7).
     """
 
-    spec = CMU
+    spec, dataset_name = CMU, "cmu"
     conv_padding = "valid"
 
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:

@@ -1,17 +1,12 @@
 """The torch dataset over downsampled, normalised sequences, and the training batch sampler.
-
-Items are dicts: ``observed (observed_len, D)`` float32, ``future (future_len, D)`` float32,
-``action`` long and, for evaluation, ``window`` long (index into ``datamodule.eval_windows``).
-
 Training follows the reference sampling (protocol §1.4): for every window, a sequence drawn
 uniformly over sequences with replacement (not weighted by length), then a start uniform in the
-dataset's range. There is no epoch over a finite set of windows: an "epoch" is
-``steps_per_epoch`` batches.
+dataset's range. An "epoch" is ``steps_per_epoch`` batches, not a pass over a set of windows.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -22,25 +17,28 @@ from src.data.errors import DataError
 
 
 class WindowDataset(Dataset):
-    """Windows addressed by (sequence index, start) pairs, as TrainWindowSampler draws them, or
-    by position i in the fixed evaluation list ``windows`` of such pairs (item i has window=i)."""
+    """Windows addressed by (sequence, start) pairs, as TrainWindowSampler draws them, or by
+    position i in the fixed evaluation list ``windows`` of such pairs; a sequence is an index
+    or key into ``sequences`` and ``actions`` (its label). Items are dicts: ``observed
+    (observed_len, D)``, ``future (future_len, D)``, ``action`` and, for a position, ``window =
+    i`` (the index into ``datamodule.eval_windows``)."""
 
     def __init__(
         self,
-        sequences: Sequence[Tensor],
-        actions: Sequence[int],
+        sequences: Sequence[Tensor] | Mapping[str, Tensor],
+        actions: Sequence[int] | Mapping[str, int],
         observed_len: int,
         future_len: int,
-        windows: Sequence[tuple[int, int]] = (),
+        windows: Sequence[tuple[int | str, int]] = (),
     ):
-        self.sequences, self.actions = list(sequences), [int(a) for a in actions]
+        self.sequences, self.actions = sequences, actions
         self.observed_len, self.future_len = observed_len, future_len
         self.windows = list(windows)
 
     def __len__(self) -> int:
         return len(self.windows)
 
-    def __getitem__(self, index: int | tuple[int, int]) -> dict[str, Tensor]:
+    def __getitem__(self, index: int | tuple[int | str, int]) -> dict[str, Tensor]:
         seq, start = index if isinstance(index, tuple) else self.windows[index]
         frames = self.sequences[seq][start : start + self.observed_len + self.future_len]
         item = {
@@ -53,21 +51,17 @@ class WindowDataset(Dataset):
         return item
 
 
-def _rank_and_world() -> tuple[int, int]:
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        return torch.distributed.get_rank(), torch.distributed.get_world_size()
-    return 0, 1
+def _rank() -> int:
+    dist = torch.distributed
+    return dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
 
 
 class TrainWindowSampler(Sampler):
     """Yields ``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs.
-
     The generator of epoch e on DDP rank r is seeded from (seed, e, r): an epoch is reproducible
-    and can be resumed at its start, and ranks draw different windows without a
-    DistributedSampler (run the Trainer with ``use_distributed_sampler=False``). Lightning's
-    ``_set_sampler_epoch`` calls ``set_epoch`` on ``dataloader.batch_sampler.sampler``, not on
-    the batch sampler itself, hence the ``sampler`` property returning ``self``.
-    """
+    and resumable, and ranks draw different windows without a DistributedSampler (run the
+    Trainer with ``use_distributed_sampler=False``). Lightning calls ``set_epoch`` on
+    ``dataloader.batch_sampler.sampler``, hence the ``sampler`` property returning ``self``."""
 
     def __init__(
         self,
@@ -104,7 +98,7 @@ class TrainWindowSampler(Sampler):
         return self.steps_per_epoch
 
     def __iter__(self) -> Iterator[list[tuple[int, int]]]:
-        rng = np.random.default_rng([self.seed, self.epoch, _rank_and_world()[0]])
+        rng = np.random.default_rng([self.seed, self.epoch, _rank()])
         n = self.batch_size * self.draws_per_step
         skip, self.start_step = self.start_step, 0
         for step in range(self.steps_per_epoch):

@@ -5,11 +5,8 @@ from __future__ import annotations
 
 
 class DataError(Exception):
-    """A problem with the motion data or with how the data layer was configured."""
-
-
-class DataNotFoundError(DataError):
-    """Files, archive or dataset absent; ``missing`` lists the files relative to data_dir."""
+    """A problem with the motion data or with how the data layer was configured; ``missing``
+    lists the missing files (relative to data_dir) where that is the problem."""
 
     def __init__(self, message: str, missing: list[str] | None = None):
         super().__init__(message)

@@ -1,7 +1,6 @@
-"""The protocol's test windows as plain arrays, for models outside this project.
-
-`python -m src.export_windows` writes them; `src.scoring` checks a predictions file against the
-same windows. Arrays, in the protocol's order (src.data.base: action by action, then as drawn):
+"""The protocol's test windows as plain arrays, for models outside this project: written by
+`python -m src.export_windows`, checked against a predictions file by `src.scoring`. Arrays, in
+the protocol's order (src.data.base: action by action, then as drawn):
 
 - ``observed`` (N, observed_len, F) and ``future`` (N, future_len, F): raw exp-map frames
   (F = 99 on H3.6M, 117 on CMU), downsampled as everywhere in the protocol (§1.3), float32;
@@ -19,8 +18,6 @@ from collections.abc import Iterable
 import numpy as np
 
 from src.data.base import MotionDataModule, window_ids
-
-METADATA = ("dataset", "protocol", "fps", "data_sha256")
 
 
 def windows_sha256(ids: Iterable[str], frames: Iterable[np.ndarray]) -> str:

@@ -1,9 +1,8 @@
-"""Where the files of each dataset live, and which ones a configuration needs.
-
-H3.6M (protocol §1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns.
-CMU (protocol §1.5): ``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train
-files k = 1..5 and test file k = 1; other folders (CMU ``walking_extra``) are never listed.
-Paths are relative to the data directory, as the archive members and MISSING.tsv write them.
+"""Where the files of each dataset live (paths relative to the data directory, as the archive
+members and MISSING.tsv write them), and which ones a configuration needs. H3.6M (protocol
+§1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns. CMU (§1.5):
+``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train files k = 1..5, test
+file k = 1; other folders (CMU ``walking_extra``) are never listed.
 """
 
 from __future__ import annotations
@@ -27,7 +26,6 @@ CMU_ACTIONS: tuple[str, ...] = tuple(
     "basketball basketball_signal directing_traffic jumping running soccer walking "
     "washwindow".split()
 )
-CMU_TRAIN_FILES, CMU_TEST_FILES = 5, 1
 
 
 @dataclass(frozen=True)
@@ -102,17 +100,13 @@ def parse_actions(actions: str | Iterable[str], spec: DatasetSpec) -> list[str]:
 def parse_subjects(subjects: int | Iterable[int], what: str) -> list[int]:
     """Validate H3.6M subject numbers (1, 5, 6, 7, 8, 9, 11)."""
     items = [subjects] if isinstance(subjects, int) else list(subjects)
-    try:
-        out = sorted({int(s) for s in items})
-    except (TypeError, ValueError):
-        raise DataError(f"{what} must be subject numbers, got {subjects!r}") from None
-    bad = [s for s in out if s not in H36M_SUBJECTS]
-    if bad or not out:
+    bad = [s for s in items if s not in H36M_SUBJECTS]
+    if bad or not items:
         raise DataError(
             f"{what}: unknown H3.6M subject(s) {bad or items!r}; valid subjects are "
             f"{', '.join(map(str, H36M_SUBJECTS))}"
         )
-    return out
+    return sorted({int(s) for s in items})
 
 
 def h36m_files(subjects: Sequence[int], actions: Sequence[str], split: str) -> list[FileEntry]:
@@ -127,7 +121,7 @@ def h36m_files(subjects: Sequence[int], actions: Sequence[str], split: str) -> l
 
 def cmu_files(actions: Sequence[str], split: str) -> list[FileEntry]:
     """The CMU files of ``actions``: train k = 1..5, test k = 1 (protocol §1.5)."""
-    count = CMU_TRAIN_FILES if split == "train" else CMU_TEST_FILES
+    count = 5 if split == "train" else 1
     return [
         FileEntry(split, a, k, None, f"{CMU.root}/{split}/{a}/{a}_{k}.txt", f"{split}/{a}/{a}_{k}")
         for a in actions

@@ -1,9 +1,7 @@
-"""Read one exp-map motion text file into a float32 array.
-
-Format (protocol §1.1, §1.5): one raw frame per line, ``n_columns`` comma-separated numbers, no
-header (99 columns for H3.6M, 117 for CMU). numpy's C parser does the work (about 10 s for all
-of H3.6M on one core); only when it fails or returns something wrong is the file read again line
-by line, to report the first bad line with its number.
+"""Read one exp-map motion text file (protocol §1.1, §1.5: one raw frame per line, 99 (H3.6M)
+or 117 (CMU) comma-separated numbers, no header) into a float32 array. numpy's C parser does the
+work (about 10 s for all of H3.6M on one core); only when it fails or returns something wrong
+is the file read again line by line, to report the first bad line with its number.
 """
 
 from __future__ import annotations
@@ -15,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from src.data.errors import DataError, DataNotFoundError
+from src.data.errors import DataError
 
 _F32_MAX = float(np.finfo(np.float32).max)
 # Plain ASCII decimal notation, what numpy's parser takes: Python's float() alone would also
@@ -34,7 +32,7 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
     of fields, a non-numeric token or a NaN/inf value raise a DataError naming file and line."""
     path = Path(path)
     if not path.is_file():
-        raise DataNotFoundError(
+        raise DataError(
             f"{path}: motion file not found (fix: check data.data_dir, or unpack the dataset "
             "archive again by deleting the unpacked folder)",
             missing=[str(path)],
@@ -70,17 +68,15 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
                     f"{len(tokens)}{hint} ({_FIX})"
                 )
             for col, token in enumerate(tokens, start=1):
-                if _NON_FINITE.fullmatch(token) or (
-                    _NUMBER.fullmatch(token) and abs(float(token)) > _F32_MAX  # inf in float32
-                ):
-                    raise DataError(
-                        f"{path}:{lineno}: column {col} holds {token!r}; NaN and infinite "
-                        f"values are not valid motion data ({_FIX})"
-                    )
-                if not _NUMBER.fullmatch(token):
+                if not (_NUMBER.fullmatch(token) or _NON_FINITE.fullmatch(token)):
                     raise DataError(
                         f"{path}:{lineno}: column {col} holds {token[:40]!r}, which is not a "
                         f"number ({_FIX})"
+                    )
+                if not abs(float(token)) <= _F32_MAX:  # NaN, inf, or inf once in float32
+                    raise DataError(
+                        f"{path}:{lineno}: column {col} holds {token!r}; NaN and infinite "
+                        f"values are not valid motion data ({_FIX})"
                     )
             rows.append([float(t) for t in tokens])
     if not rows:
