@@ -1,24 +1,23 @@
 """What the entry points share on the command line: one-line errors instead of tracebacks,
 written `--help` pages, and only the warnings that are true for this project.
 
-A `--help` page is the `hydra.help.template` of the entry point's config (conf/train.yaml):
-written text, with `${options:<group>}` where a group's options go, read from conf/<group>/.
-
-`hydra_entry` is the decorator of the Hydra entry points (train, eval, visualize): it checks that
-the configs exist (a non-editable install has none), runs Hydra, and prints what Hydra rejects
-before the task starts (a misspelt key or option, an unparsable override) as one line naming the
-close matches; `friendly_errors` does the same for the project's errors raised by the task.
+`hydra_entry` is the decorator of the Hydra entry points (train, eval, visualize,
+export_windows). Every refusal reaches the user through `src.lit.run_folders.refuse`: the
+project's errors raised by the task (`friendly_errors`, also used by src.report and
+src.plot_errors), those of the run-folder callback, and what Hydra rejects while composing (a
+misspelt key or option, an unparsable override), reworded below where Hydra's own text is
+several lines without the valid choices. HYDRA_FULL_ERROR=1 shows Hydra's traceback.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import functools
 import logging
 import os
 import sys
 import warnings
-from pathlib import Path
 
 import hydra
 from hydra.errors import (
@@ -29,30 +28,23 @@ from hydra.errors import (
 )
 from omegaconf import DictConfig, OmegaConf
 
+from src.lit.config import constructor_schema
 from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.lit.run_folders import USER_ERRORS
-from src.lit.validation import constructor_args
+from src.lit.run_folders import USER_ERRORS, refuse
 
 CONF_DIR = PROJECT_ROOT / "conf"
+# What Hydra raises while it composes the config from the command line, before the task runs.
+HYDRA_USER_ERRORS = (ConfigCompositionException, OverrideParseException, SearchPathException)
 
 
 def group_options(group: str) -> str:
-    """The options of a config group, read from conf/<group>/: "cmu, h36m, synthetic". The
-    `options` resolver of the entry points' --help pages (`${options:data}` in a config's
-    hydra.help.template), so that a page lists what exists."""
+    """The options of a config group, read from conf/<group>/: "cmu, h36m, synthetic" (the
+    `options` resolver of the --help pages, so that a page lists what exists)."""
     return ", ".join(sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
 
 
 if not OmegaConf.has_resolver("options"):
     OmegaConf.register_new_resolver("options", group_options)
-
-# What Hydra raises while it composes the config from the command line, before the task runs.
-HYDRA_USER_ERRORS = (ConfigCompositionException, OverrideParseException, SearchPathException)
-
-
-def _print_error(message: object) -> None:
-    """What a user sees instead of a traceback: `error: <what is wrong and the fix>`."""
-    print(f"error: {message}", file=sys.stderr)
 
 
 def friendly_errors(fn):
@@ -63,32 +55,22 @@ def friendly_errors(fn):
         try:
             return fn(*args, **kwargs)
         except USER_ERRORS as err:
-            _print_error(err)
-            sys.exit(2)
+            refuse(err)
 
     return wrapper
 
 
-def check_installation(conf_dir: Path | None = None) -> None:
+def check_installation() -> None:
     """The configs live in conf/ beside the package in the clone; `pip install .` (not
     editable) copies only the package into site-packages, where Hydra then finds no configs."""
-    conf_dir = CONF_DIR if conf_dir is None else conf_dir
-    if not (conf_dir / "train.yaml").is_file():
+    if not (CONF_DIR / "train.yaml").is_file():
         raise ConfigError(
-            f"the project's configs are missing: {conf_dir} holds no train.yaml, so the package "
+            f"the project's configs are missing: {CONF_DIR} holds no train.yaml, so the package "
             f"was run from {PROJECT_ROOT / 'src'} without the clone it belongs to (as after "
             "`pip install .`, which copies only the Python code). Fix: `pip uninstall "
             "motion-forecast`, then install from the clone with `pip install -e .` (editable) "
             "and run the commands there."
         )
-
-
-class _NoTips(logging.Filter):
-    """Lightning's advertisements for its cloud products ("💡 Tip: ... try installing
-    litlogger"), printed by every Trainer: nothing a run can act on."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not str(record.msg).startswith("💡 Tip")
 
 
 def silence_false_warnings() -> None:
@@ -97,19 +79,18 @@ def silence_false_warnings() -> None:
     # Lightning 2.6 builds torch's deprecated LeafSpec itself; nothing a user can change.
     leaf_spec = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
     warnings.filterwarnings("ignore", message=leaf_spec, category=FutureWarning)
+    # Lightning's advertisements for its cloud products ("💡 Tip: ... try litlogger").
     tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
-    if not any(isinstance(f, _NoTips) for f in tips.filters):
-        tips.addFilter(_NoTips())
+    if not any(getattr(f, "__name__", "") == "no_tips" for f in tips.filters):
+        tips.addFilter(no_tips)
+
+
+def no_tips(record: logging.LogRecord) -> bool:
+    return not str(record.msg).startswith("💡 Tip")
 
 
 def hydra_entry(config_name: str):
-    """`@hydra.main` for `conf/<config_name>.yaml` with the project's one-line errors.
-
-    Replaces the pair `@hydra.main(version_base="1.3", config_path="../conf", config_name=...)`
-    and `@friendly_errors`. Hydra's own messages for a misspelt key, a misspelt option or an
-    unparsable override span several lines without the valid keys; here they become one line
-    naming the close matches. HYDRA_FULL_ERROR=1 still shows Hydra's full traceback.
-    """
+    """`@hydra.main` for `conf/<config_name>.yaml`, with the project's one-line errors."""
 
     def decorate(fn):
         task = friendly_errors(fn)
@@ -122,19 +103,21 @@ def hydra_entry(config_name: str):
             try:
                 check_installation()
             except ConfigError as err:
-                _print_error(err)
-                sys.exit(2)
+                refuse(err)
+            if config_name in ("eval", "visualize") and not any(
+                a.startswith("data=") for a in sys.argv
+            ):  # a checkpoint brings its data config; a partial copy is the machine's fact
+                sys.argv = [
+                    a.replace("data.allow_partial=", "paths.allow_partial=") for a in sys.argv
+                ]
             run = hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name=config_name)
             if os.environ.get("HYDRA_FULL_ERROR") == "1":
                 return run(task)()
-            # Hydra prints composition errors itself and exits, unless HYDRA_FULL_ERROR is set:
-            # then it raises them, and they are reported here.
-            os.environ["HYDRA_FULL_ERROR"] = "1"
+            os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises, instead of printing, its errors
             try:
                 return run(task)()
             except HYDRA_USER_ERRORS as err:
-                _print_error(describe_hydra_error(err, config_name, _command_line_overrides()))
-                sys.exit(2)
+                refuse(hydra_error(err, config_name))
             finally:
                 os.environ.pop("HYDRA_FULL_ERROR", None)
 
@@ -143,13 +126,10 @@ def hydra_entry(config_name: str):
     return decorate
 
 
-def _command_line_overrides() -> list[str]:
-    return [a for a in sys.argv[1:] if not a.startswith("-")]
-
-
-def describe_hydra_error(err: Exception, config_name: str, overrides: list[str]) -> str:
-    """One line for an error Hydra raised while composing `config_name` with `overrides`."""
-    text = str(err)
+def hydra_error(err: Exception, config_name: str) -> str:
+    """One line for an error Hydra raised while composing `config_name`."""
+    text, cause = str(err), err.__cause__
+    see = f"(`python -m src.{config_name} --help` lists the settings)"
     if isinstance(err, OverrideParseException):
         return (
             f"cannot parse the override {err.override!r}: {err.message.splitlines()[0]}. Fix: "
@@ -157,112 +137,46 @@ def describe_hydra_error(err: Exception, config_name: str, overrides: list[str])
             "\"ckpt_path='a=b,c/last.ckpt'\"."
         )
     if isinstance(err, MissingConfigException) and err.options is not None:
-        group = os.path.dirname(err.missing_cfg_file or "") or "?"
-        wanted = os.path.basename(err.missing_cfg_file or "")
+        group, _, wanted = (err.missing_cfg_file or "?/?").rpartition("/")
         close = difflib.get_close_matches(wanted, err.options, n=3, cutoff=0.5)
         hint = f" Did you mean {' or '.join(f'{group}={c}' for c in close)}?" if close else ""
         return (
             f"{group}={wanted}: no such option of {config_name}.{hint} Choose one of: "
             f"{', '.join(sorted(err.options))}."
         )
-    if text.startswith("Could not override '"):
-        key = text[len("Could not override '") :].split("'", 1)[0]
-        config = _compose_without(config_name, overrides, key)
-        return unknown_key_message(key, config, groups=config_groups(config_name))
+    if text.startswith("Could not override '") and getattr(cause, "parent_node", None) is not None:
+        return _unknown_key(text.split("'")[1], str(cause.key), cause.parent_node)
     if text.startswith("Could not append to config. An item is already at '"):
         key = text.split("'")[1]
+        return f"+{key}: the config already has {key}; set it without the +: {key}=<value> {see}."
+    return f"{' '.join(text.split())} {see}"
+
+
+def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
+    """`key` names `missing`, which `parent` lacks: name the close keys that exist, and the
+    constructor arguments of an instantiated node that a + adds."""
+    where = parent._get_full_key(None) or ""
+    rest = key[len(where) + len(missing) + (1 if where else 0) :]
+    if not where and (CONF_DIR / missing).is_dir():  # a group left unchosen (eval's data)
         return (
-            f"+{key}: the config already has {key}; set it without the +: {key}=<value> "
-            f"(`python -m src.{config_name} --help` lists the settings)."
+            f"{key}: no {missing} option is chosen, so there is no {key} to set. Choose one "
+            f"before it: {missing}={group_options(missing).replace(', ', '|')} {key}=<value>."
         )
-    return f"{' '.join(text.split())} (`python -m src.{config_name} --help` lists the settings)"
+    present = [str(k) for k in parent if not str(k).startswith("_") and k != "hydra"]
+    target = parent.get("_target_") if not rest else None
+    addable = [a for a in _arguments(target) if a not in parent and a[0] != "_"] if target else []
+    if rest:  # the key goes deeper: only a group of settings can match
+        present = [k for k in present if isinstance(parent.get(k), DictConfig)]
+    close = difflib.get_close_matches(missing, present + addable, n=3, cutoff=0.6)
+    spelt = [("+" if c in addable else "") + ".".join(filter(None, (where, c))) + rest
+             for c in close]  # fmt: skip
+    hint = f" Did you mean {' or '.join(spelt)}?" if close else ""
+    keys = ", ".join(sorted(present))
+    return f"{key}: no such key.{hint} Keys under {where or 'the top level'}: {keys}."
 
 
-def _compose_without(config_name: str, overrides: list[str], key: str) -> dict | None:
-    """The config composed from the other overrides (to find the keys that do exist), as a
-    plain unresolved dict; None if it cannot be composed."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-
-    def key_of(override: str) -> str:
-        return override.split("=", 1)[0].lstrip("+~")
-
-    others = [o for o in overrides if key_of(o) != key and "=" in o]
-    # A sweep (a,b) or a misspelt neighbour must not hide the keys: fall back to fewer overrides.
-    choices = [o for o in others if "." not in key_of(o) and "," not in o]
-    for attempt in (others, choices, []):
-        GlobalHydra.instance().clear()
-        try:
-            with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-                cfg = compose(config_name, overrides=attempt)
-            return OmegaConf.to_container(cfg, resolve=False)
-        except Exception:  # noqa: BLE001 (any failure: try with fewer overrides)
-            continue
-        finally:
-            GlobalHydra.instance().clear()
-    return None
-
-
-def config_groups(config_name: str) -> list[str]:
-    """The config groups `conf/<config_name>.yaml` composes (its defaults list, Hydra's own
-    left out): the options a `group=option` override may name."""
+def _arguments(target: str) -> list[str]:
     try:
-        primary = OmegaConf.to_container(OmegaConf.load(CONF_DIR / f"{config_name}.yaml"))
-        defaults = primary.get("defaults") or []
-    except Exception:  # noqa: BLE001 (only the suggestions are lost)
+        return [f.name for f in dataclasses.fields(constructor_schema(target))]
+    except Exception:  # noqa: BLE001 (an unknown target: only the suggestions are lost)
         return []
-    groups = []
-    for entry in defaults:
-        name = next(iter(entry)) if isinstance(entry, dict) else str(entry).split(":")[0]
-        name = name.split()[-1]  # "optional experiment", "override /model"
-        if name not in ("_self_", "hydra") and not name.startswith("hydra/"):
-            groups.append(name.lstrip("/"))
-    return groups
-
-
-def unknown_key_message(key: str, config: dict | None, groups: list[str] = ()) -> str:
-    """`key` is not in `config` (a plain dict): name the closest keys that exist, including
-    constructor arguments of an instantiated node that the config leaves out (added with +)
-    and, at the top level, the config `groups` (which a baseline config may leave empty)."""
-    parts = key.split(".")
-    node, depth = config or {}, 0
-    while depth < len(parts) and isinstance(node, dict) and parts[depth] in node:
-        node, depth = node[parts[depth]], depth + 1
-    prefix, rest = parts[:depth], parts[depth + 1 :]
-    where = ".".join(prefix) or "the top level"
-    if depth == 0 and rest and parts[0] in groups:
-        # A group the config leaves empty (eval's data and model: a checkpoint brings its
-        # own): its keys exist once an option is chosen, so naming the key itself as the
-        # close match would not help.
-        group = parts[0]
-        options = "|".join(sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
-        return (
-            f"{key}: no {group} option is chosen, so there is no {key} to set. Choose one "
-            f"before it: {group}={options} {key}=<value> (with ckpt_path=, the checkpoint's "
-            f"own {group})."
-        )
-    if not isinstance(node, dict):
-        return (
-            f"{key}: {'.'.join(prefix)} is a value, not a group of settings, so it has no "
-            f"{'.'.join(parts[depth:])}. Set {'.'.join(prefix)}=<value>."
-        )
-    present = [str(k) for k in node if not str(k).startswith("_")]
-    if depth == 0:
-        present += [g for g in groups if g not in present]
-    addable = [a for a in constructor_args(node) if a not in node]
-    wanted = parts[depth]
-    candidates = present + addable
-    if rest:  # the key goes deeper: only a group of settings (or a config group) can match
-        candidates = [c for c in present if isinstance(node.get(c), dict) or c in groups]
-    close = difflib.get_close_matches(wanted, candidates, n=3, cutoff=0.6)
-
-    def spell(name: str) -> str:
-        full = ".".join([*prefix, name, *rest])
-        return f"+{full}" if name in addable else full
-
-    hint = f"Did you mean {' or '.join(spell(c) for c in close)}? " if close else ""
-    added = ""
-    if any(c in addable for c in close):
-        added = " (+ adds an argument the config leaves out)"
-    shown = ", ".join(sorted(present)[:40])
-    return f"{key}: no such key. {hint}Keys under {where}: {shown}{added}."

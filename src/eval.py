@@ -17,11 +17,8 @@ from __future__ import annotations
 from omegaconf import DictConfig
 
 from src.cli import hydra_entry
-from src.lit.factory import register_resolvers
 from src.lit.run_folders import nothing_left_if_refused
 from src.results import evaluate
-
-register_resolvers()
 
 
 @hydra_entry("eval")

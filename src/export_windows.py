@@ -11,7 +11,6 @@ protocol), as raw exp-map frames; the arrays are described in src/data/export.py
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -19,17 +18,15 @@ from omegaconf import DictConfig
 
 from src.cli import hydra_entry
 from src.data.export import window_arrays
-from src.lit.factory import ConfigError, build_test_data, register_resolvers
+from src.data.files import atomic_write
+from src.lit.config import check
+from src.lit.factory import ConfigError, build_test_data
 from src.lit.run_folders import nothing_left_if_refused
-from src.lit.schema import ExportWindowsConfig
-from src.lit.validation import validate_eval_config
-
-register_resolvers()
 
 
 def export(cfg: DictConfig) -> Path:
     """Write the windows of `data=` under `protocol=` to `out=`; return its path."""
-    validate_eval_config(cfg, ExportWindowsConfig)
+    check(cfg, "export_windows")
     out = Path(cfg.out) if cfg.get("out") else Path(cfg.paths.output_dir) / "windows.npz"
     if out.suffix != ".npz":
         raise ConfigError(f"out={out}: name a .npz file, e.g. out=windows.npz")
@@ -37,14 +34,7 @@ def export(cfg: DictConfig) -> Path:
         raise ConfigError(f"out={out} already exists; nothing was overwritten. Name a new file.")
     dm = build_test_data(cfg)
     arrays = window_arrays(dm, cfg.data.name)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    # Written beside, then renamed: a killed export leaves no half file under the name.
-    partial = out.with_name(f".{out.name}.partial-{os.getpid()}.npz")
-    try:
-        np.savez_compressed(partial, **arrays)
-        os.replace(partial, out)
-    finally:
-        partial.unlink(missing_ok=True)
+    atomic_write(out, lambda tmp: np.savez_compressed(tmp, **arrays))  # no half file, if killed
     n, obs, F = arrays["observed"].shape
     absent = "".join(f"\n  absent: {a} ({why})" for a, why in dm.absent_actions.items())
     print(

@@ -26,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry, silence_false_warnings
 from src.lit.compose import compose_config
-from src.lit.factory import ConfigError, git_commit, register_resolvers
+from src.lit.factory import ConfigError, git_commit
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
 from src.reporting.headline import figures, readme_block
@@ -34,7 +34,6 @@ from src.reporting.page import build_page, per_action_csv, replace_block
 from src.reporting.runs import gather_runs, mark_archives, scored_entries, write_record
 from src.results import evaluate as run_eval
 
-register_resolvers()
 BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 

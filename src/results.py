@@ -13,9 +13,9 @@ from pathlib import Path
 import lightning as L
 from omegaconf import DictConfig
 
+from src.lit.config import check
 from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
-from src.lit.validation import validate_eval_config
 from src.reporting.published import published_for
 from src.reporting.tables import result_table, results_from_metric, table_markdown, tables_csv
 from src.scoring import score_predictions
@@ -50,7 +50,7 @@ def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
 
 
 def evaluate(cfg: DictConfig) -> dict:
-    validate_eval_config(cfg)
+    check(cfg, "eval")
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
     # A file of predictions from any code (src/scoring.py) is tested as a model is.

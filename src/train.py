@@ -43,63 +43,32 @@ from src.lit.factory import (
     build_module,
     build_trainer,
     git_commit,
-    register_resolvers,
 )
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
-from src.lit.resume import describe, restore_run
-from src.lit.run_folders import nothing_left_if_refused
-from src.lit.validation import check_schedule, validate_train_config
+from src.lit.resume import describe, prepare_training
+from src.lit.run_folders import holds_run, nothing_left_if_refused
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
-register_resolvers()
-
-
-def _check_writable(folder: Path) -> None:
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        probe = folder / ".write_test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as err:
-        raise ConfigError(
-            f"cannot write the run folder {folder}: {err}. Set hydra.run.dir (or "
-            "paths.log_dir) to a writable place."
-        ) from err
-
-
-def _check_unused(folder: Path) -> None:
-    """Refuse a folder that already holds a run: two runs started within the same second (the
-    folder name's resolution) or sweep jobs differing only in an excluded key (seed) would
-    otherwise write over each other's checkpoints."""
-    if (folder / "config.yaml").exists() or any((folder / "checkpoints").glob("*.ckpt")):
-        raise ConfigError(
-            f"the run folder {folder} already holds another run; nothing was overwritten. "
-            "Start the run again (it gets a new timestamped folder) or set hydra.run.dir."
-        )
-
-
-def _command_line() -> tuple[list[str], dict] | None:
-    """The overrides and config-group options the config was composed with, if by Hydra."""
-    if not HydraConfig.initialized():
-        return None
-    hydra_cfg = HydraConfig.get()
-    return list(hydra_cfg.overrides.task), OmegaConf.to_container(hydra_cfg.runtime.choices)
 
 
 def train(cfg: DictConfig) -> float:
-    command_line = _command_line()
-    resume = None
-    if command_line is not None:  # a resume continues the run's own config
-        cfg, resume = restore_run(cfg, *command_line)
-    validate_train_config(cfg)
-    check_schedule(cfg)
+    # A resume continues the run's own config; prepared (and checked) once, before the run
+    # folder was made when the command line started this run.
+    hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
+    overrides = list(hydra_cfg.overrides.task) if hydra_cfg else []
+    choices = OmegaConf.to_container(hydra_cfg.runtime.choices) if hydra_cfg else {}
+    cfg, resume = prepare_training(cfg, overrides, choices)
     out_dir = Path(cfg.paths.output_dir)
-    _check_writable(out_dir)
-    if rank_zero_only.rank == 0:  # DDP's other ranks start later, in the same folder
-        _check_unused(out_dir)
+    # Two runs started within the same second, or sweep jobs differing only in an excluded key
+    # (seed), would otherwise write over each other; DDP's other ranks use rank 0's folder.
+    if rank_zero_only.rank == 0 and holds_run(out_dir):
+        raise ConfigError(
+            f"the run folder {out_dir} already holds another run; nothing was overwritten. "
+            "Start the run again (it gets a new timestamped folder) or set hydra.run.dir."
+        )
     L.seed_everything(cfg.seed, workers=True)
 
     dm = build_datamodule(cfg.data)

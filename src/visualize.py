@@ -27,15 +27,13 @@ from omegaconf import DictConfig
 
 from src.cli import hydra_entry
 from src.data.base import MotionDataModule
-from src.lit.factory import ConfigError, build_for_evaluation, register_resolvers
+from src.lit.config import check
+from src.lit.factory import ConfigError, build_for_evaluation
 from src.lit.run_folders import nothing_left_if_refused
-from src.lit.schema import VisualizeConfig
-from src.lit.validation import validate_eval_config
 from src.metrics.kinematics import Skeleton
 from src.plots import animate, frame_strip, window_rows
 
 log = logging.getLogger(__name__)
-register_resolvers()
 
 
 def select_window(dm: MotionDataModule, action: str, window: int) -> int:
@@ -70,12 +68,7 @@ def _writer(fmt: str, fps: float):
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
     matplotlib.use("Agg")
-    # The types first: a word would fail deep in the drawing, window=1.5 would show window 1.
-    # window's range depends on the action: select_window checks it.
-    validate_eval_config(cfg, VisualizeConfig)
-    for key in ("observed_shown", "strip_step"):
-        if cfg[key] < 1:
-            raise ConfigError(f"{key}={cfg[key]} must be >= 1")
+    check(cfg, "visualize")  # window's range depends on the action: select_window names it
     dm, module = build_for_evaluation(cfg)
     observed_shown = min(int(cfg.observed_shown), dm.observed_len)
     rows, n_obs, what = window_rows(

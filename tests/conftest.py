@@ -12,7 +12,7 @@ import pytest
 from omegaconf import DictConfig
 
 from src.lit.compose import compose_config  # noqa: F401  (re-exported for the tests)
-from src.lit.factory import register_resolvers
+from src.lit.run_folders import register_resolvers
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"

@@ -21,13 +21,14 @@ import torch
 from omegaconf import DictConfig
 
 from src.lit.compose import compose_config
+from src.lit.config import check
 from src.lit.factory import (  # noqa: F401  (ConfigError: what a refused config raises)
     ConfigError,
     build_datamodule,
     build_for_evaluation,
     build_module,
+    build_parts,
 )
-from src.lit.validation import validate_train_config
 
 
 # ------------------------------------------------------------------------------ threads
@@ -48,8 +49,10 @@ def compose(overrides: list[str], out_dir: Path, data_dir: Path, name: str = "tr
 
 
 def validate(cfg: DictConfig) -> None:
-    """The checks `src.train` runs on a config before anything else (ConfigError if refused)."""
-    validate_train_config(cfg)
+    """The checks `src.train` runs on a config before anything else (ConfigError if refused):
+    the types and combinations, then the constructors that check their own arguments."""
+    check(cfg, "train")
+    build_parts(cfg)
 
 
 # ------------------------------------------------------------------------------ objects

@@ -176,7 +176,7 @@ def test_partial_copy_full_protocol_raises_listing_files(tmp_path):
     with pytest.raises(DataError) as err:
         dm.prepare_data()
     msg = str(err.value)
-    assert all(rel in msg for rel in gone) and "data.allow_partial=true" in msg
+    assert all(rel in msg for rel in gone) and "MOTION_ALLOW_PARTIAL=true" in msg
     assert sorted(err.value.missing) == sorted(gone)
 
 

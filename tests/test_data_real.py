@@ -121,7 +121,7 @@ def test_h36m_full_protocol_refuses_partial_copy(h36m, data_dir):
         H36MDataModule(data_dir).prepare_data()
     msg = str(err.value)
     assert all(p in msg for p in S5_MISSING)
-    assert "data.allow_partial=true" in msg
+    assert "MOTION_ALLOW_PARTIAL=true" in msg
 
 
 def test_h36m_real_batches(h36m):

@@ -17,7 +17,7 @@ from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
-from src.lit.validation import validate_train_config
+from src.lit.resume import prepare_training
 from tests.conftest import compose_config, run_module
 from tests.test_resume import TINY
 
@@ -338,16 +338,17 @@ def test_same_command_twice_gives_two_run_folders(tmp_path, synthetic_data_dir):
         (["adversarial.lambda_2=-1"], r"adversarial.lambda_2=-1 must be >= 0"),
         (["model.lr_decay_every=0"], r"model.lr_decay_every=0 must be >= 1"),
         (["model.lr_decay_gamma=0"], r"model.lr_decay_gamma=0 must be in \(0, 1\]"),
-        (["model.grad_clip_norm=-5"], r"model.grad_clip_norm=-5 must be > 0, or null"),
-        (["sampling=linear", "sampling.steps=0"], r"sampling.steps=0 must be >= 1"),
+        (["model.grad_clip_norm=-5"], r"model.grad_clip_norm=-5 must be > 0"),
+        # the constructors' own refusals, from the objects built before the run starts
+        (["sampling=linear", "sampling.steps=0"], r"sampling.steps=0 must be a positive number"),
         (["sampling=inverse_sigmoid", "sampling.k=0.5"], r"sampling.k=0.5 must be >= 1"),
-        (["data.eval_protocol=srn"], r"data.eval_protocol='srn' is unknown; .*srnn, random"),
+        (["data.eval_protocol=srn"], r"unknown data.eval_protocol 'srn'; valid: srnn, random"),
     ],
 )
 def test_more_out_of_range_values_are_rejected(overrides, message, tmp_path, synthetic_data_dir):
     cfg = compose_config("train", ["data=synthetic", *overrides], tmp_path, synthetic_data_dir)
-    with pytest.raises(ConfigError, match=message):
-        validate_train_config(cfg)
+    with pytest.raises((ConfigError, DataError), match=message):
+        prepare_training(cfg, [], {})
 
 
 def test_misspelt_action_lists_the_valid_ones_before_training(h36m_dir, tmp_path):

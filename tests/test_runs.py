@@ -20,11 +20,11 @@ from omegaconf import OmegaConf
 
 from src.lit.checkpoints import CheckpointError
 from src.lit.compose import compose_config
+from src.lit.config import check_schedule
 from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
 from src.lit.resume import describe, restore_run
 from src.lit.run_folders import claim_run_folder
-from src.lit.validation import check_schedule
 from tests.conftest import ROOT
 from tests.test_resume import TINY
 
@@ -533,3 +533,101 @@ def test_resume_names_the_run_folder_or_its_checkpoints_folder(tmp_path):
     last.write_bytes(b"")
     for given in (last.parent.parent, last.parent, last):
         assert checkpoint_to_resume(OmegaConf.create({"resume": str(given)})) == last
+
+
+# ------------------------------------------------------------------ one way for each job
+def test_an_atomic_write_leaves_the_old_file_or_the_new_one(tmp_path):
+    """Every writer of src (checkpoints, the data cache, synthetic files, exported windows)
+    goes through atomic_write; a write that dies midway leaves the previous file whole."""
+    import numpy as np
+
+    from src.data.files import atomic_write, free_path
+
+    path = tmp_path / "x.npy"
+    path.write_bytes(b"old")
+
+    def dies_midway(tmp: Path) -> None:
+        tmp.write_bytes(b"ne")
+        raise OSError("killed mid-write")
+
+    with pytest.raises(OSError, match="killed mid-write"):
+        atomic_write(path, dies_midway)
+    assert path.read_bytes() == b"old" and list(tmp_path.iterdir()) == [path]
+    atomic_write(path, lambda tmp: np.save(tmp, np.arange(3)))  # np.save keeps the name
+    assert np.load(path).tolist() == [0, 1, 2] and list(tmp_path.iterdir()) == [path]
+    assert free_path(path) == tmp_path / "x-1.npy" and free_path(tmp_path / "y.png").name == "y.png"
+
+
+def test_a_training_config_is_restored_and_checked_once(tmp_path, synthetic_data_dir, monkeypatch):
+    """The command line's callback restores and checks a resumed run's config before its
+    folder exists; src.train then finds it prepared (both used to do it, at every start)."""
+    import src.lit.resume as resume
+    import src.train
+    from src.cli import hydra_entry
+
+    run = _fake_run(tmp_path / "run", synthetic_data_dir, *RUN)
+    calls = []
+    restore = resume.restore_run
+    monkeypatch.setattr(resume, "restore_run", lambda *a: calls.append(a) or restore(*a))
+
+    class Prepared(Exception):
+        pass
+
+    def stop(data_cfg):  # the first thing train() does after preparing: load the data
+        raise Prepared(data_cfg.name)
+
+    monkeypatch.setattr(src.train, "build_datamodule", stop)
+    monkeypatch.setenv("MOTION_DATA_DIR", str(synthetic_data_dir))
+    argv = ["src.train", f"resume={run}", "iterations=8", f"paths.log_dir={tmp_path / 'logs'}"]
+    monkeypatch.setattr(sys, "argv", argv)
+    with pytest.raises(Prepared, match="synthetic"):
+        hydra_entry("train")(src.train.train)()
+    assert len(calls) == 1
+
+
+def test_resume_with_a_length_that_does_not_fit_suggests_lengths_only(tmp_path, synthetic_data_dir):
+    """`resume=<run> iterations=7` used to suggest val_every=7, which the resume refuses (a
+    resumed run keeps its val_every): only lengths are suggested."""
+    from src.lit.resume import prepare_training
+
+    run = _fake_run(tmp_path / "run", synthetic_data_dir, *RUN)  # val_every=2
+    overrides = [f"resume={run}", "iterations=7"]
+    cfg = compose_config("train", overrides, tmp_path / "new", synthetic_data_dir)
+    choices = OmegaConf.to_container(HydraConfig.get().runtime.choices)
+    with pytest.raises(ConfigError) as err:
+        prepare_training(cfg, overrides, choices)
+    assert str(err.value) == (
+        "iterations=7 is not a multiple of val_every=2 (training runs whole validation "
+        "periods); use iterations=6 or iterations=8 (a resume keeps its run's val_every)."
+    )
+
+
+@pytest.mark.parametrize(
+    "override",
+    ["+trainer.max_steps=5", "trainer.max_epochs=5", "+trainer.min_steps=2",
+     "+trainer.min_epochs=2", "+trainer.val_check_interval=3", "trainer.check_val_every_n_epoch=2",
+     "+trainer.limit_train_batches=3"],
+)  # fmt: skip
+def test_trainer_keys_the_schedule_sets_are_refused_naming_iterations(override, train_cfg):
+    """`+trainer.max_steps=N` used to be accepted and recorded in config.yaml while the run
+    trained `iterations`; each Trainer key the iteration schedule sets is refused, naming it."""
+    from src.lit.config import check
+
+    key, _, value = override.lstrip("+").partition("=")
+    with pytest.raises(ConfigError) as err:
+        check(train_cfg(override), "train")
+    assert str(err.value).startswith(
+        f"{key}={value}: the training schedule sets it from iterations=4 (the run's length) "
+        "and val_every=2; change those instead."
+    )
+
+
+def test_cli_refuses_max_epochs_beside_iterations(tmp_path, synthetic_data_dir):
+    """As a new user would try it: trains nothing, leaves no folder."""
+    proc = _cli(
+        "src.train", tmp_path, synthetic_data_dir, *GRU, "iterations=100", "val_every=100",
+        "trainer.max_epochs=5",
+    )  # fmt: skip
+    assert proc.returncode == 2
+    assert _error_line(proc).startswith("error: trainer.max_epochs=5: the training schedule")
+    assert not tmp_path.joinpath("train").exists()

@@ -102,10 +102,10 @@ def test_cli_training_a_baseline_is_refused_before_anything_is_written(
     "overrides", [["model=running_avg_2", "adversarial=none"], ["model=running_avg_4"]]
 )
 def test_training_a_running_average_is_refused(overrides, train_cfg):
-    from src.lit.validation import validate_train_config
+    from src.lit.resume import prepare_training
 
     with pytest.raises(ConfigError, match=r"running_avg_\d has no trainable parameters.*src\.eval"):
-        validate_train_config(train_cfg(*overrides))
+        prepare_training(train_cfg(*overrides), [], {})
 
 
 # ------------------------------------------------------------ row 7: published numbers, titles
@@ -212,24 +212,59 @@ def test_misspelt_key_in_train_config_names_the_close_matches(monkeypatch, capsy
 
 @pytest.mark.parametrize("entry", ["eval", "visualize"])
 def test_key_of_a_group_left_unchosen_says_to_choose_it(entry, monkeypatch, capsys):
-    """src.eval ckpt_path=... data.allow_partial=true (as --help lists it): the data comes from
-    the checkpoint, so no data option is chosen; the message used to be "data.allow_partial:
-    no such key. Did you mean data.allow_partial?"."""
+    """src.eval ckpt_path=... data.batch_size=8: the data comes from the checkpoint, so no data
+    option is chosen; the message used to be "no such key. Did you mean data.batch_size?"."""
     from src.cli import hydra_entry
 
     called = []
     main = hydra_entry(entry)(lambda cfg: called.append(cfg))
-    monkeypatch.setattr(sys, "argv", [entry, "ckpt_path=a.ckpt", "data.allow_partial=true"])
+    monkeypatch.setattr(sys, "argv", [entry, "ckpt_path=a.ckpt", "data.batch_size=8"])
     with pytest.raises(SystemExit) as info:
         main()
     assert info.value.code == 2 and not called
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
     assert err.startswith(
-        "error: data.allow_partial: no data option is chosen, so there is no data.allow_partial "
-        "to set. Choose one before it: data=cmu|h36m|synthetic data.allow_partial=<value>"
+        "error: data.batch_size: no data option is chosen, so there is no data.batch_size to "
+        "set. Choose one before it: data=cmu|h36m|synthetic data.batch_size=<value>"
     ), err
-    assert "Did you mean data.allow_partial" not in err
+
+
+@pytest.mark.parametrize("entry", ["eval", "visualize"])
+def test_allow_partial_beside_a_checkpoint_is_taken(entry, tmp_path, monkeypatch):
+    """src.eval ckpt_path=... data.allow_partial=true used to be refused, asking for a data=
+    option that the checkpoint fixes. Whether this machine's copy lacks files is a fact of the
+    machine (paths.allow_partial, which the checkpoint's data config takes:
+    factory.build_for_evaluation): the override sets it."""
+    from src.cli import hydra_entry
+
+    called = []
+    main = hydra_entry(entry)(lambda cfg: called.append(cfg))
+    argv = [entry, "ckpt_path=a.ckpt", "data.allow_partial=true", f"paths.log_dir={tmp_path}"]
+    monkeypatch.setattr(sys, "argv", argv)
+    main()
+    (cfg,) = called
+    assert cfg.paths.allow_partial is True and cfg.get("data") is None
+
+
+@pytest.mark.parametrize(("value", "expected"), [(None, False), ("true", True), ("false", False)])
+def test_allow_partial_defaults_from_the_environment(value, expected, tmp_path, monkeypatch):
+    """The README's quick start exports MOTION_ALLOW_PARTIAL=true once, beside MOTION_ARCHIVES,
+    and every command runs as written on a copy that lacks files; unset, a partial copy is
+    refused listing the missing files (tests/test_data_real.py)."""
+    if value is None:
+        monkeypatch.delenv("MOTION_ALLOW_PARTIAL", raising=False)
+    else:
+        monkeypatch.setenv("MOTION_ALLOW_PARTIAL", value)
+    compositions = [("train", ["data=cmu"]), ("eval", ["model=zero_velocity", "data=h36m"])]
+    for name, overrides in compositions:
+        cfg = compose_config(name, overrides, tmp_path)
+        assert cfg.data.allow_partial is expected and cfg.paths.allow_partial is expected
+    monkeypatch.setenv("MOTION_ALLOW_PARTIAL", "maybe")
+    from src.lit.config import check
+
+    with pytest.raises(ConfigError, match=r"^paths.allow_partial='maybe' must be true or false"):
+        check(compose_config("train", [], tmp_path), "train")
 
 
 def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic_data_dir):
@@ -259,17 +294,17 @@ def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic
     ],
 )
 def test_added_keys_are_checked_against_their_constructor(override, message, train_cfg):
-    from src.lit.validation import validate_train_config
+    from src.lit.resume import prepare_training
 
     with pytest.raises(ConfigError, match=message):
-        validate_train_config(train_cfg(override))
+        prepare_training(train_cfg(override), [], {})
 
 
 @pytest.mark.parametrize("experiment", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
 def test_every_shipped_config_passes_the_constructor_check(experiment, train_cfg):
-    from src.lit.validation import check_constructor_keys
+    from src.lit.config import check
 
-    check_constructor_keys(train_cfg(f"experiment={experiment}"))
+    check(train_cfg(f"experiment={experiment}"), "train")
 
 
 # ------------------------------------------------------------ row 10: --help

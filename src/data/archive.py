@@ -229,7 +229,8 @@ def check_missing(spec: DatasetSpec, data_dir: Path, missing: list[str], allow_p
         f"  {listing}\n"
         f"The full protocol needs all of them. Fix: get the complete archive "
         f"({_how_to_get(spec)}), delete {data_dir / spec.root} and run again to unpack it; "
-        f"or set data.allow_partial=true to use the files that exist and report the "
-        f"actions that cannot be evaluated as absent.",
+        f"or, for a copy that stays partial, export MOTION_ALLOW_PARTIAL=true (or add "
+        f"paths.allow_partial=true) to use the files that exist and report the actions "
+        f"that cannot be evaluated as absent.",
         missing,
     )

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from src.data.files import atomic_write
 from src.data.layout import DatasetSpec
 from src.data.reader import read_motion_file
 
@@ -63,7 +64,7 @@ def load_sequences(
         if writable:
             npy = rel.replace("/", "__").removesuffix(".txt") + ".npy"
             try:
-                _atomic_write(folder / npy, lambda fh, a=arr: np.save(fh, a, allow_pickle=False))
+                atomic_write(folder / npy, lambda tmp, a=arr: np.save(tmp, a, allow_pickle=False))
             except OSError as exc:
                 writable = False
                 log.warning("cannot write the cache in %s (%s); parsing every time", folder, exc)
@@ -79,7 +80,7 @@ def load_sequences(
     if (todo or gone) and writable:
         text = json.dumps(manifest, indent=1, sort_keys=True)
         try:
-            _atomic_write(folder / MANIFEST, lambda fh: fh.write(text.encode()))
+            atomic_write(folder / MANIFEST, lambda tmp: tmp.write_text(text))
         except OSError as exc:
             log.warning("cannot write the cache manifest in %s (%s)", folder, exc)
     return out
@@ -103,14 +104,3 @@ def _load_npy(path: Path, frames: int, n_columns: int) -> np.ndarray | None:
     except (OSError, ValueError, EOFError):
         return None
     return arr if arr.dtype == np.float32 and arr.shape == (frames, n_columns) else None
-
-
-def _atomic_write(path: Path, write) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as fh:
-            write(fh)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)

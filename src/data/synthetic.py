@@ -17,6 +17,7 @@ import numpy as np
 
 from src.data.archive import resolve_data_dir
 from src.data.errors import DataError
+from src.data.files import atomic_write
 from src.data.h36m import H36MDataModule
 from src.data.layout import H36M, H36M_ACTIONS, h36m_files
 
@@ -68,10 +69,7 @@ def write_synthetic_h36m(
         paths.append(path)
         if path.is_file() and path.read_bytes() == data:
             continue
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
+        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
     return paths
 
 

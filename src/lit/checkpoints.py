@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import signal
 import zipfile
 from pathlib import Path
@@ -24,6 +23,7 @@ import torch
 from lightning.pytorch.callbacks import Checkpoint, ModelCheckpoint
 from omegaconf import DictConfig, OmegaConf
 
+from src.data.files import atomic_write
 from src.data.normalization import Normalizer
 
 log = logging.getLogger(__name__)
@@ -89,12 +89,12 @@ class LastCheckpoint(Checkpoint):
         )
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        tmp = self.path.with_name(f".{LAST}.partial")
         # Every rank takes part; only rank 0 writes. weights_only=False said, not defaulted
         # to: Lightning logs a note at every save otherwise.
-        trainer.save_checkpoint(tmp, weights_only=False)
         if trainer.is_global_zero:
-            os.replace(tmp, self.path)
+            atomic_write(self.path, lambda tmp: trainer.save_checkpoint(tmp, weights_only=False))
+        else:
+            trainer.save_checkpoint(self.path, weights_only=False)
         trainer.strategy.barrier("last_checkpoint")
 
     def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:

@@ -10,8 +10,8 @@ from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, open_dict
 
-from src.lit import hydra_callbacks  # noqa: F401  (registers path_safe, used by conf/hydra)
-from src.lit.factory import PROJECT_ROOT, register_resolvers
+from src.lit.factory import PROJECT_ROOT
+from src.lit.run_folders import register_resolvers
 
 CONF_DIR = PROJECT_ROOT / "conf"
 

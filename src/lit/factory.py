@@ -11,6 +11,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import hydra
+import torch
 from hydra.errors import InstantiationException
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 from omegaconf import DictConfig, OmegaConf
@@ -18,22 +19,11 @@ from omegaconf import DictConfig, OmegaConf
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_compatible, read_checkpoint
+from src.lit.config import ConfigError
 from src.lit.predictor import MotionPredictor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
-
-
-class ConfigError(ValueError):
-    """A configuration value or combination that cannot work."""
-
-
-def register_resolvers() -> None:
-    if not OmegaConf.has_resolver("project_root"):
-        OmegaConf.register_new_resolver("project_root", lambda: str(PROJECT_ROOT))
-    if not OmegaConf.has_resolver("evaluated"):
-        from src.lit.run_folders import evaluated_name  # here: it imports this module
-
-        OmegaConf.register_new_resolver("evaluated", evaluated_name)
+__all__ = ["ConfigError", "PROJECT_ROOT"]  # and the builders below
 
 
 def git_commit() -> str:
@@ -76,6 +66,24 @@ def build_trainer(trainer_cfg: DictConfig, **kwargs):
     """The Lightning Trainer of `trainer_cfg` (kwargs: what only the entry point knows); a
     setting Lightning refuses (devices=0, an unknown strategy) is a one-line ConfigError."""
     return _instantiate(trainer_cfg, **kwargs)
+
+
+def build_parts(cfg: DictConfig) -> None:
+    """Build, and drop, what a training run's constructors check before any data is read: the
+    data module, the eta schedule and the optimisers (on a stand-in parameter). Their own
+    refusals (eta outside [0, 1], a negative learning rate, batch_size=0) so come before the
+    run folder is made, as one line."""
+    build_datamodule(cfg.data)
+    if cfg.get("sampling"):
+        _instantiate(cfg.sampling)
+    adversarial = (cfg.get("adversarial") or {}).get("enabled")
+    for key in ("model.optimizer", *(["adversarial.optimizer"] if adversarial else [])):
+        node = OmegaConf.select(cfg, key)
+        if node is not None:
+            try:
+                _instantiate(node)([torch.nn.Parameter(torch.zeros(1))])
+            except ValueError as err:  # torch.optim's refusal of an argument
+                raise ConfigError(f"{key}: {err}") from None
 
 
 # ---------------------------------------------------------------------------- data
@@ -210,8 +218,8 @@ def build_for_evaluation(cfg: DictConfig):
     if cfg.ckpt_path:
         module = load_trained(cfg.ckpt_path, cfg)
         data_cfg = OmegaConf.create(module.run_info["config"]["data"])
-        # Where data lives is a property of this machine, not of the checkpoint.
-        for key in ("data_dir", "archive_dir"):
+        # Where data lives, and whether its copy lacks files, are facts of this machine.
+        for key in ("data_dir", "archive_dir", "allow_partial"):
             data_cfg[key] = cfg.paths[key]
         if cfg.get("data") is not None:  # evaluation settings (protocol, windows) may differ
             for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):

@@ -16,7 +16,8 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
-from src.lit.factory import ConfigError
+from src.lit.config import ConfigError, check
+from src.lit.factory import build_parts
 
 # Where files live on this machine: always taken from this command, never from the resumed run.
 FROM_HERE = (
@@ -279,6 +280,29 @@ def restore_run(
         )
     OmegaConf.set_struct(restored, True)
     return restored, Resume(ckpt, run_dir, applied, from_checkpoint, run_choices)
+
+
+# (config, Resume) prepared by the CLI's callback before the run folder existed, for this
+# process's run: src.train finds its config prepared and does not restore and check it again.
+_prepared: tuple[dict, Resume | None] | None = None
+
+
+def prepare_training(
+    cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
+) -> tuple[DictConfig, Resume | None]:
+    """The config a training run runs with, once per run: the resumed run's own settings with
+    the command line's on top (restore_run), checked (src.lit.config.check), and the objects
+    whose constructors check their own arguments built once (factory.build_parts), so that
+    every refusal comes before the run folder and the data."""
+    global _prepared
+    plain = OmegaConf.to_container(cfg, resolve=False)
+    if _prepared is not None and _prepared[0] == plain:
+        return cfg, _prepared[1]
+    restored, resume = restore_run(cfg, overrides, choices)
+    check(restored, "train", resuming=resume is not None)
+    build_parts(restored)
+    _prepared = (OmegaConf.to_container(restored, resolve=False), resume)
+    return restored, resume
 
 
 def describe(resume: Resume, iteration: int) -> str:

@@ -1,0 +1,51 @@
+"""The two ways this project writes where something else may be: a file written whole or not at
+all, and a new name no other process can take. Every writer in src/ goes through these."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+
+def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
+    """Call `write(tmp)` to write a temporary file beside `path`, then rename it over `path`:
+    a reader (or a run killed mid-write) sees the old file or the new one, never half of one.
+    The temporary name keeps the suffix, for writers that add one (np.save)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def claim_folder(base: str | os.PathLike) -> Path:
+    """Create and return `base`, or `base-1`, `base-2`, ... when taken: `os.mkdir` succeeds in
+    one process only, so runs started in the same second (a timestamp's resolution) get
+    folders of their own. Missing parents are created."""
+    base = Path(base)
+    candidate, n = base, 0
+    while True:
+        try:
+            candidate.mkdir()
+            return candidate
+        except FileExistsError:
+            n += 1
+            candidate = base.with_name(f"{base.name}-{n}")
+        except FileNotFoundError:
+            candidate.parent.mkdir(parents=True, exist_ok=True)
+
+
+def free_path(path: str | os.PathLike) -> Path:
+    """`path`, or `<stem>-1<suffix>`, `-2`, ... where that exists: a default output file name
+    that never writes over an earlier output."""
+    path = Path(path)
+    candidate, n = path, 0
+    while candidate.exists():
+        n += 1
+        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
+    return candidate
