@@ -1,11 +1,8 @@
-"""Find, download (only when asked) and unpack a dataset archive; report missing files.
-
-:func:`ensure_dataset` uses, in this order: the unpacked folder under ``data_dir``; ``archive``,
-a zip, its folder or an http(s) URL (downloaded into ``data_dir``: the only download, asked for);
-``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``. It
-unpacks into a temporary folder renamed into place at the end, so an interrupted unpack never
-looks like data; absolute member paths, ``..`` and symbolic links are refused.
-"""
+"""Find, download (only when asked) and unpack a dataset archive; report missing files. Tried in
+order: the unpacked folder under ``data_dir``; ``archive`` (a zip, its folder, or an http(s) URL,
+downloaded into ``data_dir``); ``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``,
+``<data_dir>/<name>.zip``. Unpacking goes through a temporary folder renamed into place (an
+interrupted unpack never looks like data) and refuses absolute, ``..`` and symlink members."""
 
 from __future__ import annotations
 

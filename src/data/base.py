@@ -1,12 +1,9 @@
-"""The LightningDataModule shared by H3.6M and CMU: text files -> (cache) raw 50 Hz float32
-arrays -> Normalizer from the raw training frames (protocol §2.1) -> even-frame downsampling
-(§1.3) -> normalised used dimensions -> training windows drawn per §1.4 / §1.5 and a fixed list
-of evaluation windows (§3; or the project's ``random`` / ``strided`` protocols).
-
-With a partial copy of the data, ``allow_partial=False`` (the full protocol) raises listing every
-missing file; ``allow_partial=True`` trains on what exists and lists each action that cannot be
-evaluated in ``absent_actions`` with the reason, so it is reported as absent, never as zero.
-"""
+"""The LightningDataModule shared by H3.6M and CMU: text files -> (cache) raw 50 Hz arrays ->
+Normalizer of the raw training frames (protocol §2.1) -> even frames (§1.3) -> normalised used
+dimensions -> training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or the
+``random`` / ``strided`` protocols). A partial copy of the data is refused, listing every missing
+file, or with ``allow_partial`` used as it is, each action that cannot be evaluated reported in
+``absent_actions`` with the reason: absent, never zero."""
 
 from __future__ import annotations
 
@@ -46,9 +43,8 @@ class EvalWindow:
 
 
 def window_ids(windows: Iterable[EvalWindow]) -> list[str]:
-    """One name per window, ``<sequence>@<start>`` (``S5/walking_1@1087``), the start counted in
-    downsampled frames (protocol §1.3). The random protocol may draw a window twice: its k-th
-    repeat is ``...@start#k`` (k = 2, 3, ...), so that every window has a name of its own."""
+    """One name per window, ``<sequence>@<start>`` (``S5/walking_1@1087``, in downsampled frames,
+    §1.3); a window the random protocol draws again is ``...@start#k``, k = 2, 3, ..."""
     seen: Counter[str] = Counter()
     out = []
     for w in windows:
@@ -131,8 +127,7 @@ class MotionDataModule(L.LightningDataModule):
         self._stage: str | None = None
 
     def set_normalizer(self, normalizer: Normalizer) -> None:
-        """Use these statistics (a checkpoint's) instead of the training files' ones. Evaluation
-        (`setup("validate"|"test")`) then reads only the test files."""
+        """A checkpoint's statistics: then setup("validate"|"test") reads only the test files."""
         self._given_normalizer = normalizer
 
     @property
@@ -310,8 +305,7 @@ class MotionDataModule(L.LightningDataModule):
     test_dataloader = val_dataloader
 
     def raw_window(self, index: int) -> np.ndarray:
-        """Downsampled raw (unnormalised, F columns) frames of ``eval_windows[index]``:
-        observed_len observed frames, then future_len future ones."""
+        """Downsampled raw (F columns) frames of ``eval_windows[index]``, observed then future."""
         self._require_setup()
         w = self.eval_windows[index]
         return self._test_raw[w.sequence][w.start : w.start + self.window_len].copy()

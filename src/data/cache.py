@@ -1,16 +1,13 @@
 """Parse each motion text file once and keep a binary copy under ``<data_dir>/cache/<dataset>/``:
-one ``.npy`` per source file plus ``manifest.json`` with each source's size and ``mtime_ns``; a
-changed, new or vanished source updates just its own entry. Every write goes to a temporary file
-renamed into place, so a killed run leaves the old or the new file, never a torn one; a cache
-file that does not read back with the right shape is simply parsed again.
-"""
+one ``.npy`` per file plus ``manifest.json`` with each source's size and ``mtime_ns``, so a
+changed, new or vanished source updates just its own entry. Writes are atomic; a cache file that
+does not read back with the right shape is parsed again."""
 
 from __future__ import annotations
 
 import json
 import logging
 import os
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -55,12 +52,10 @@ def load_sequences(
     writable = True
     if todo:
         log.info("parsing %d %s text file(s) into the cache %s", len(todo), spec.name, folder)
-        t0 = time.perf_counter()
     for rel, st in todo:
         # stat taken before reading: if the file changes while we read it, the entry is stale
         # and the next run parses it again.
-        arr = read_motion_file(data_dir / rel, spec.n_columns)
-        out[rel] = arr
+        arr = out[rel] = read_motion_file(data_dir / rel, spec.n_columns)
         if writable:
             npy = rel.replace("/", "__").removesuffix(".txt") + ".npy"
             try:
@@ -70,8 +65,6 @@ def load_sequences(
                 log.warning("cannot write the cache in %s (%s); parsing every time", folder, exc)
                 continue
             entries[rel] = dict(size=st.st_size, mtime_ns=st.st_mtime_ns, frames=len(arr), npy=npy)
-    if todo:
-        log.info("parsed %d file(s) in %.1f s", len(todo), time.perf_counter() - t0)
 
     # Forget entries whose source file is gone (they would never be valid again).
     gone = [rel for rel in entries if not (data_dir / rel).is_file()]

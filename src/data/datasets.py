@@ -1,12 +1,11 @@
 """The torch dataset over downsampled, normalised sequences, and the training batch sampler.
 Training follows the reference sampling (protocol §1.4): for every window, a sequence drawn
 uniformly over sequences with replacement (not weighted by length), then a start uniform in the
-dataset's range. An "epoch" is ``steps_per_epoch`` batches, not a pass over a set of windows.
-"""
+dataset's range. An "epoch" is ``steps_per_epoch`` batches, not a pass over a set of windows."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import torch
@@ -17,20 +16,12 @@ from src.data.errors import DataError
 
 
 class WindowDataset(Dataset):
-    """Windows addressed by (sequence, start) pairs, as TrainWindowSampler draws them, or by
-    position i in the fixed evaluation list ``windows`` of such pairs; a sequence is an index
-    or key into ``sequences`` and ``actions`` (its label). Items are dicts: ``observed
-    (observed_len, D)``, ``future (future_len, D)``, ``action`` and, for a position, ``window =
-    i`` (the index into ``datamodule.eval_windows``)."""
+    """Windows addressed by (sequence, start) pairs as TrainWindowSampler draws them, or by
+    position i in the evaluation list ``windows`` of such pairs (the sequence an index or key of
+    ``sequences`` and ``actions``). Items: ``observed (observed_len, D)``, ``future (future_len,
+    D)``, ``action`` and, by position, ``window`` = i (the index into ``dm.eval_windows``)."""
 
-    def __init__(
-        self,
-        sequences: Sequence[Tensor] | Mapping[str, Tensor],
-        actions: Sequence[int] | Mapping[str, int],
-        observed_len: int,
-        future_len: int,
-        windows: Sequence[tuple[int | str, int]] = (),
-    ):
+    def __init__(self, sequences, actions, observed_len: int, future_len: int, windows=()):
         self.sequences, self.actions = sequences, actions
         self.observed_len, self.future_len = observed_len, future_len
         self.windows = list(windows)

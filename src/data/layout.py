@@ -2,8 +2,7 @@
 members and MISSING.tsv write them), and which ones a configuration needs. H3.6M (protocol
 §1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns. CMU (§1.5):
 ``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train files k = 1..5, test
-file k = 1; other folders (CMU ``walking_extra``) are never listed.
-"""
+file k = 1; other folders (CMU ``walking_extra``) are never listed."""
 
 from __future__ import annotations
 

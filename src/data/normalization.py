@@ -3,8 +3,7 @@ the raw 50 Hz frames of all loaded training files (§2.1): population mean and s
 column is *used* iff its std >= 1e-4, and the std of ignored columns is reset to 1.
 ``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts them back and fills the
 ignored ones with the training mean, as the reference's zero-fill-then-scale does (§2.2). The
-statistics are buffers, so every checkpoint of the owning module holds them.
-"""
+statistics are buffers, so every checkpoint of the owning module holds them."""
 
 from __future__ import annotations
 
@@ -41,9 +40,8 @@ class Normalizer(nn.Module):
     def from_sequences(
         cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD
     ) -> Normalizer:
-        """``from_frames(np.concatenate(sequences))`` without the copy. Two passes in float64
-        (mean, then squared deviations): the std is exact to float32 precision even for the
-        near-constant columns, which decide the used set."""
+        """``from_frames(np.concatenate(sequences))`` without the copy. Two float64 passes (mean,
+        squared deviations): the near-constant columns, which decide the used set, come exact."""
         seqs = [np.asarray(s) for s in sequences]
         n = sum(len(s) for s in seqs)
         if n == 0:

@@ -1,8 +1,7 @@
 """Read one exp-map motion text file (protocol §1.1, §1.5: one raw frame per line, 99 (H3.6M)
 or 117 (CMU) comma-separated numbers, no header) into a float32 array. numpy's C parser does the
 work (about 10 s for all of H3.6M on one core); only when it fails or returns something wrong
-is the file read again line by line, to report the first bad line with its number.
-"""
+is the file read again line by line, to report the first bad line with its number."""
 
 from __future__ import annotations
 

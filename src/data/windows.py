@@ -1,10 +1,7 @@
-"""Start frames of training and evaluation windows: pure functions of sequence lengths.
-
-Lengths and starts are in downsampled frames (protocol §1.3); a window starting at ``s`` covers
-frames [s, s + observed_len + future_len). Training starts, as in the reference code, lie in
-[16, n - (50 + T_out)) on H3.6M (protocol §1.4) and [0, n - (50 + T_out)) on CMU (§1.5); the
-project's ``random`` and ``strided`` evaluation protocols use the same ranges.
-"""
+"""Start frames of training and evaluation windows, in downsampled frames (protocol §1.3), as
+pure functions of sequence lengths. Training starts, as in the reference code, lie in
+[16, n - (50 + T_out)) on H3.6M (§1.4) and [0, n - (50 + T_out)) on CMU (§1.5); the ``random``
+and ``strided`` evaluation protocols use the same ranges."""
 
 from __future__ import annotations
 
