@@ -138,40 +138,57 @@ def euler_error_per_frame(
     return sq.sum(-1).sqrt()
 
 
-def check_action_indices(action: Tensor, batch: int, num_actions: int) -> Tensor:
-    """Validate an action-index tensor (B,) against the metric's num_actions; return it as long."""
-    if not isinstance(action, Tensor) or action.dtype not in (torch.int32, torch.int64):
-        raise MetricInputError("action must be an integer tensor (B,) of action indices")
-    if action.shape != (batch,):
-        raise MetricInputError(f"action must have shape ({batch},), got {tuple(action.shape)}")
-    if batch and (action.min() < 0 or action.max() >= num_actions):
-        raise MetricInputError(
-            f"action indices must lie in [0, {num_actions}), got {action.min()}..{action.max()}"
-        )
-    return action.long()
-
-
-class EulerAngleError(torchmetrics.Metric):
-    """Mean Euler error per action and future frame, (A, T), over all windows seen.
-
-    compute() returns NaN for actions without any window; callers show them as absent. States are
-    sums, so the value is the same however windows are split into batches or processes.
-    """
+class PerActionMean(torchmetrics.Metric):
+    """Mean of a per-window, per-frame error (B, T) per action and frame, (A, T), over all windows
+    seen; NaN for actions without any, which callers show as absent. The states are sums, so the
+    value is the same however the windows are split into batches or processes."""
 
     full_state_update = False
     is_differentiable = False
     higher_is_better = False
 
-    def __init__(self, num_actions: int, num_frames: int, dim_rule: str = "future", **kwargs):
+    def __init__(self, num_actions: int, num_frames: int, **kwargs):
         super().__init__(**kwargs)
-        if dim_rule not in DIM_RULES:
-            raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
-        self.num_actions, self.num_frames, self.dim_rule = num_actions, num_frames, dim_rule
+        self.num_actions, self.num_frames = num_actions, num_frames
         zeros = torch.zeros(num_actions, num_frames, dtype=torch.float64)
         self.add_state("error_sum", default=zeros, dist_reduce_fx="sum")
-        self.add_state(
-            "count", default=torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum"
-        )
+        self.add_state("count", torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum")
+
+    def add(self, err: Tensor, action: Tensor) -> None:
+        """Add the errors (B, T) of windows of the actions ``action`` (B,) long."""
+        if err.shape[1] != self.num_frames:
+            raise MetricInputError(
+                f"expected (B, {self.num_frames}, F) predictions, got {err.shape[1]} frames; "
+                "num_frames of the metric must equal the number of predicted frames"
+            )
+        if not isinstance(action, Tensor) or action.dtype not in (torch.int32, torch.int64):
+            raise MetricInputError("action must be an integer tensor (B,) of action indices")
+        if action.shape != err.shape[:1]:
+            raise MetricInputError(
+                f"action must have shape ({len(err)},), got {tuple(action.shape)}"
+            )
+        if len(action) and (action.min() < 0 or action.max() >= self.num_actions):
+            raise MetricInputError(
+                f"action indices must lie in [0, {self.num_actions}), got "
+                f"{action.min()}..{action.max()}"
+            )
+        action = action.long().to(self.count.device)
+        self.error_sum.index_add_(0, action, err.to(self.error_sum.device))
+        self.count += torch.bincount(action, minlength=self.num_actions)
+
+    def compute(self) -> Tensor:
+        mean = self.error_sum / self.count.clamp_min(1).unsqueeze(1)
+        return torch.where(self.count.unsqueeze(1) > 0, mean, torch.nan)
+
+
+class EulerAngleError(PerActionMean):
+    """Mean Euler error (protocol §4.1) per action and future frame, (A, T)."""
+
+    def __init__(self, num_actions: int, num_frames: int, dim_rule: str = "future", **kwargs):
+        super().__init__(num_actions, num_frames, **kwargs)
+        if dim_rule not in DIM_RULES:
+            raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
+        self.dim_rule = dim_rule
 
     def update(
         self,
@@ -180,26 +197,4 @@ class EulerAngleError(torchmetrics.Metric):
         action: Tensor,
         gt_observed_full: Tensor | None = None,
     ) -> None:
-        if (
-            not isinstance(pred_full, Tensor)
-            or pred_full.dim() != 3
-            or pred_full.shape[1] != self.num_frames
-        ):
-            raise MetricInputError(
-                f"expected (B, {self.num_frames}, F) predictions, got {tuple(pred_full.shape)}; "
-                "num_frames of the metric must equal the number of predicted frames"
-            )
-        err = euler_error_per_frame(pred_full, gt_full, self.dim_rule, gt_observed_full)
-        device = self.error_sum.device
-        action = check_action_indices(action, err.shape[0], self.num_actions).to(device)
-        self.error_sum.index_add_(0, action, err.to(device))
-        self.count += torch.bincount(action, minlength=self.num_actions)
-
-    def compute(self) -> Tensor:
-        return mean_or_nan(self.error_sum, self.count)
-
-
-def mean_or_nan(error_sum: Tensor, count: Tensor) -> Tensor:
-    """error_sum (A, T) / count (A,), NaN where count is 0."""
-    mean = error_sum / count.clamp_min(1).unsqueeze(1).to(error_sum.dtype)
-    return torch.where(count.unsqueeze(1) > 0, mean, torch.full_like(mean, float("nan")))
+        self.add(euler_error_per_frame(pred_full, gt_full, self.dim_rule, gt_observed_full), action)
