@@ -1,13 +1,9 @@
-"""The Euler-angle error of Martinez et al. 2017 / Li et al. 2018 (protocol §4).
-
-Per test window: unnormalised exp-map frames -> Euler angles per joint triple -> zero the global
-translation and rotation (cols 0-5) -> keep the dims whose ground-truth Euler std over time is
-> 1e-4 -> per-frame L2 norm of the difference over the kept dims (no angle wrapping). The table
-value for an action is the plain mean over its windows (protocol §4.1 step 6).
-
-The dims are chosen from the ground truth, never from the prediction: choosing them from the
-prediction (the old bug of protocol §8) gives a constant prediction zero error.
-"""
+"""The Euler-angle error of Martinez et al. 2017 / Li et al. 2018 (protocol §4). Per test window:
+unnormalised exp-map frames -> Euler angles per joint triple -> zero the global translation and
+rotation (cols 0-5) -> keep the dims whose ground-truth Euler std over time is > 1e-4 -> per-frame
+L2 norm of the difference over the kept dims (no angle wrapping); an action's table value is the
+plain mean over its windows (§4.1 step 6). The dims come from the ground truth, never from the
+prediction: that (the old bug of protocol §8) gives a constant prediction zero error."""
 
 import torch
 import torchmetrics
@@ -21,13 +17,10 @@ DIM_RULES = ("future", "window")
 
 
 def horizon_frame_indices(frame_ms: float = 40, num_frames: int = 25) -> dict[int, int]:
-    """Map each horizon of HORIZONS_MS to its 0-based index into the predicted frames.
-
-    Predicted frame k lies (k + 1) * frame_ms after the last observed frame (protocol §4.3), so
-    80 ms -> 1, 160 -> 3, 320 -> 7, 400 -> 9, 560 -> 13, 1000 -> 24 at 40 ms per frame. Only
-    horizons with index < num_frames are returned. The CMU tables of Li et al. use the same
-    indices and labels (frame_ms = 40) although that data is probably at 30 Hz (protocol §1.5).
-    """
+    """Each horizon of HORIZONS_MS with its 0-based index < num_frames into the predicted frames.
+    Frame k lies (k + 1) * frame_ms after the last observed one (protocol §4.3): 80 ms -> 1,
+    160 -> 3, 320 -> 7, 400 -> 9, 560 -> 13, 1000 -> 24 at 40 ms. Li et al.'s CMU tables use the
+    same (frame_ms = 40) although that data is probably at 30 Hz (protocol §1.5)."""
     if frame_ms <= 0 or num_frames < 1:
         raise MetricInputError(
             f"frame_ms must be > 0 and num_frames >= 1, got {frame_ms} and {num_frames}"
@@ -58,11 +51,9 @@ def _check_frames(x: Tensor, name: str) -> None:
 
 
 def expmap_frames_to_euler(x: Tensor) -> Tensor:
-    """Full exp-map frames (..., F) to Euler frames (..., F) as the metric sees them.
-
-    Triples starting at column 3 are converted (protocol §4.1 step 2, as in [M]); then columns
-    0-5, the global translation and rotation, are set to 0 (step 3).
-    """
+    """Full exp-map frames (..., F) to Euler frames (..., F) as the metric sees them: triples
+    from column 3 on converted (protocol §4.1 step 2, as in [M]), columns 0-5, the global
+    translation and rotation, set to 0 (step 3)."""
     _check_frames(x, "frames")
     euler = expmap_to_euler(x[..., 3:].unflatten(-1, (-1, 3))).flatten(-2)
     return torch.cat((torch.zeros_like(x[..., :6]), euler[..., 3:]), -1)
@@ -71,13 +62,9 @@ def expmap_frames_to_euler(x: Tensor) -> Tensor:
 def selected_dims(
     gt_euler: Tensor, dim_rule: str = "future", observed_euler: Tensor | None = None
 ) -> Tensor:
-    """Bool mask (B, F) of the Euler dims the error uses in each window (protocol §4.1 step 4).
-
-    gt_euler (B, T, F) and observed_euler (B, T_obs, F) are Euler frames from
-    expmap_frames_to_euler. A dim is kept where the ground-truth population std over time is
-    > 1e-4, the std taken over the future frames ("future", [M]) or observed + future ("window",
-    [L]). Never over the prediction: that was the bug of protocol §8.
-    """
+    """Bool mask (B, F) of the Euler dims the error uses in each window (protocol §4.1 step 4):
+    those whose ground-truth population std over time is > 1e-4, over the future frames
+    gt_euler (B, T, F) ("future", [M]) or observed_euler (B, T_obs, F) + future ("window", [L])."""
     if dim_rule not in DIM_RULES:
         raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
     if dim_rule == "future":
@@ -108,15 +95,10 @@ def euler_error_per_frame(
     dim_rule: str = "future",
     gt_observed_full: Tensor | None = None,
 ) -> Tensor:
-    """Per-window, per-frame Euler error (B, T) in float64 (protocol §4.1 steps 1-5).
-
-    pred_full, gt_full: unnormalised exp-map (B, T, F). Dims are kept where the ground-truth
-    Euler std (population, over time, per window) exceeds 1e-4, computed over
-    - "future": the T future frames ([M] after its PR #17 fix; the default), or
-    - "window": observed + future frames ([L]); needs gt_observed_full (B, T_obs, F).
-    The error of a frame is the L2 norm of the Euler difference over the kept dims, without
-    wrapping angle differences (as the reference).
-    """
+    """Per-window, per-frame Euler error (B, T) in float64 (protocol §4.1 steps 1-5) of
+    unnormalised exp-map pred_full and gt_full (B, T, F): the L2 norm of the Euler difference,
+    angles unwrapped as in the reference, over the dims selected_dims keeps by dim_rule,
+    "future" ([M] after its PR #17 fix) or "window" ([L], needs gt_observed_full (B, T_obs, F))."""
     _check_frames(pred_full, "pred_full")
     _check_frames(gt_full, "gt_full")
     if pred_full.dim() != 3 or pred_full.shape != gt_full.shape:
@@ -124,8 +106,6 @@ def euler_error_per_frame(
             f"pred_full and gt_full must both be (B, T, F); got {tuple(pred_full.shape)} and "
             f"{tuple(gt_full.shape)}"
         )
-    if dim_rule not in DIM_RULES:
-        raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
     observed = None
     if dim_rule == "window" and gt_observed_full is not None:
         _check_frames(gt_observed_full, "gt_observed_full")
