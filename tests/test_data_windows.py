@@ -15,7 +15,6 @@ from src.data.windows import (
     cmu_test_starts,
     random_starts,
     srnn_h36m_starts,
-    start_bounds,
     strided_starts,
 )
 
@@ -71,8 +70,9 @@ def test_cmu_starts_depend_on_future_len_and_stay_in_range():
 def test_training_ranges_follow_protocol():
     # H3.6M [16, n - (50 + T_out)), CMU [0, n - (50 + T_out)) (protocol §1.4, §1.5).
     assert TRAIN_START_LOW == {"h36m": 16, "cmu": 0}
-    assert start_bounds(200, 75, TRAIN_START_LOW["h36m"]) == (16, 125)
-    assert start_bounds(82, 75, TRAIN_START_LOW["cmu"]) == (0, 7)
+    every = [(0, s) for s in range(16, 125)]
+    assert strided_starts([200], 75, 1, TRAIN_START_LOW["h36m"]) == every
+    assert strided_starts([82], 75, 1, TRAIN_START_LOW["cmu"]) == [(0, s) for s in range(7)]
 
 
 def test_random_starts_are_seeded_bounded_and_skip_short_sequences():
@@ -142,13 +142,9 @@ def test_sampler_epochs_reproducible_and_distinct():
 
 def test_sampler_ranks_draw_different_windows(monkeypatch):
     s = TrainWindowSampler([300, 250], window_len=75, low=16, batch_size=8, steps_per_epoch=5)
-    monkeypatch.setattr(datasets_mod, "_rank_and_world", lambda: (0, 2))
-    rank0 = list(s)
-    monkeypatch.setattr(datasets_mod, "_rank_and_world", lambda: (1, 2))
-    rank1 = list(s)
-    assert rank0 != rank1
-    monkeypatch.setattr(datasets_mod, "_rank_and_world", lambda: (0, 1))
-    assert list(s) == rank0  # rank 0 of DDP draws what a single process draws
+    rank0 = list(s)  # rank 0 of DDP draws what a single process draws
+    monkeypatch.setattr(datasets_mod, "_rank", lambda: 1)
+    assert list(s) != rank0
 
 
 def test_sampler_exposes_itself_where_lightning_calls_set_epoch():

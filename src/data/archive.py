@@ -1,15 +1,8 @@
-"""Find, download (only when asked) and unpack a dataset archive; report missing files.
-
-Order of preference in :func:`ensure_dataset`:
-1. the unpacked layout already under ``data_dir`` (``h3.6m/dataset`` or ``cmu_mocap``);
-2. ``archive``: a path to the zip (or to the folder holding it), or an http(s) URL, which is then
-   downloaded into ``data_dir`` (the only case where anything is downloaded: the user asked);
-3. ``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``, ``<data_dir>/<name>.zip``.
-
-Unpacking writes into a temporary folder inside ``data_dir`` and renames it into place at the end,
-so an interrupted unpack never looks like data. Member paths are checked: absolute paths, ``..``
-and symbolic links are refused.
-"""
+"""Find, download (only when asked) and unpack a dataset archive; report missing files. Tried in
+order: the unpacked folder under ``data_dir``; ``archive`` (a zip, its folder, or an http(s) URL,
+downloaded into ``data_dir``); ``<archive_dir>/<name>.zip``, ``$MOTION_ARCHIVES/<name>.zip``,
+``<data_dir>/<name>.zip``. Unpacking goes through a temporary folder renamed into place (an
+interrupted unpack never looks like data) and refuses absolute, ``..`` and symlink members."""
 
 from __future__ import annotations
 
@@ -22,8 +15,8 @@ import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
 
-from src.data.errors import DataError, DataNotFoundError
-from src.data.layout import SPECS, DatasetSpec, is_unpacked
+from src.data.errors import DataError
+from src.data.layout import SPECS, DatasetSpec
 
 log = logging.getLogger(__name__)
 
@@ -33,55 +26,34 @@ DATA_DIR_ENV = "MOTION_DATA_DIR"
 
 def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path:
     """``data_dir`` if given, else ``$MOTION_DATA_DIR``, else ``./data``."""
-    if data_dir is None or str(data_dir) == "":
-        data_dir = os.environ.get(DATA_DIR_ENV) or "data"
-    return Path(data_dir).expanduser()
-
-
-def _spec(dataset: str | DatasetSpec) -> DatasetSpec:
-    if isinstance(dataset, DatasetSpec):
-        return dataset
-    if dataset not in SPECS:
-        raise DataError(f"unknown dataset {dataset!r}; valid: {', '.join(SPECS)}")
-    return SPECS[dataset]
+    return Path(data_dir or os.environ.get(DATA_DIR_ENV) or "data").expanduser()
 
 
 def ensure_dataset(
-    dataset: str | DatasetSpec,
-    data_dir: str | os.PathLike | None,
-    archive: str | os.PathLike | None = None,
-    archive_dir: str | os.PathLike | None = None,
+    dataset: str | DatasetSpec, data_dir: str | os.PathLike | None, archive=None, archive_dir=None
 ) -> Path:
-    """Make sure the dataset is unpacked under ``data_dir``; return ``data_dir``.
-
-    Raises :class:`DataNotFoundError` saying what to download and where to put it when neither
-    the unpacked folder nor an archive can be found.
-    """
-    spec = _spec(dataset)
+    """Make sure the dataset is unpacked under ``data_dir`` and return ``data_dir``; raise a
+    DataError saying what to download and where to put it if nothing is found. ``archive``: a
+    zip's path, its folder or URL; ``archive_dir``: a folder that may hold the zip."""
+    spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     data_dir = resolve_data_dir(data_dir)
-    if is_unpacked(data_dir, spec):
-        return data_dir
-
-    zip_path = _find_archive(spec, data_dir, archive, archive_dir)
-    log.info("unpacking %s into %s", zip_path, data_dir)
-    unpack_archive(zip_path, data_dir, spec)
+    if not (data_dir / spec.marker).is_dir():
+        zip_path = _find_archive(spec, data_dir, archive, archive_dir)
+        log.info("unpacking %s into %s", zip_path, data_dir)
+        unpack_archive(zip_path, data_dir, spec)
     return data_dir
 
 
-def _find_archive(
-    spec: DatasetSpec, data_dir: Path, archive: str | os.PathLike | None, archive_dir
-) -> Path:
-    if archive is not None and str(archive) != "":
-        text = str(archive)
-        if text.startswith(("http://", "https://")):
-            return download(text, data_dir / spec.archive_name)
-        path = Path(text).expanduser()
-        if path.is_dir():
-            path = path / spec.archive_name
+def _find_archive(spec: DatasetSpec, data_dir: Path, archive, archive_dir) -> Path:
+    if archive and str(archive).startswith(("http://", "https://")):
+        return download(str(archive), data_dir / spec.archive_name)
+    if archive:
+        path = Path(archive).expanduser()
+        path = path / spec.archive_name if path.is_dir() else path
         if not path.is_file():
             # Name the file looked for: a folder given as data.archive exists, its zip does not.
-            raise DataNotFoundError(
-                f"data.archive={text}: {path} does not exist (fix: point data.archive to "
+            raise DataError(
+                f"data.archive={archive}: {path} does not exist (fix: point data.archive to "
                 f"{spec.archive_name} or to the folder that holds it; {_how_to_get(spec)})"
             )
         return path
@@ -89,7 +61,7 @@ def _find_archive(
     searched, absent = [], []
     env = os.environ.get(ARCHIVES_ENV)
     for folder, name in ((archive_dir, "data.archive_dir"), (env, ARCHIVES_ENV), (data_dir, None)):
-        if folder is None or str(folder) == "":
+        if not folder:
             continue
         candidate = Path(folder).expanduser() / spec.archive_name
         if str(candidate) in searched:  # data.archive_dir defaults to $MOTION_ARCHIVES
@@ -101,7 +73,7 @@ def _find_archive(
             name = ARCHIVES_ENV if str(folder) == str(env) else name
             absent.append(f"{name}={folder}: that folder does not exist")
 
-    raise DataNotFoundError(
+    raise DataError(
         f"{spec.name} data not found: there is no folder {data_dir / spec.marker} and no archive "
         f"(looked for {', '.join(searched)}){''.join(f'; {a}' for a in absent)}.\n"
         f"Fix: {_how_to_get(spec)}, then either\n"
@@ -128,7 +100,7 @@ def download(url: str, dest: Path) -> Path:
             shutil.copyfileobj(response, out, 1 << 20)
     except OSError as exc:  # URLError and HTTPError are OSErrors
         part.unlink(missing_ok=True)
-        raise DataNotFoundError(
+        raise DataError(
             f"could not download {url}: {exc} (fix: download it by hand and pass "
             f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
         ) from None
@@ -142,23 +114,9 @@ def download(url: str, dest: Path) -> Path:
     return dest
 
 
-def _member_path(name: str, root: str, archive: Path) -> str | None:
-    """Member path relative to data_dir (from ``root`` on), None to skip; refuse unsafe names."""
-    name = name.replace("\\", "/")
-    parts = PurePosixPath(name).parts
-    if name.startswith("/") or (parts and ":" in parts[0]) or ".." in parts:
-        raise DataError(
-            f"{archive}: unsafe member path {name!r} (absolute or with '..'); refusing to unpack "
-            "(fix: use the archive as distributed)"
-        )
-    if root not in parts:
-        return None  # e.g. __MACOSX/ or a README next to the dataset folder
-    return "/".join(parts[parts.index(root) :])
-
-
 def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, dataset) -> None:
     """Safely unpack the dataset folder of ``archive`` into ``data_dir`` (temp dir + rename)."""
-    spec = _spec(dataset)
+    spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     archive, data_dir = Path(archive), Path(data_dir)
     # is_zipfile() answers False for a file it cannot open, which would blame the archive.
     try:
@@ -182,7 +140,13 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
     tmp = data_dir / f".{spec.root}.unpacking-{os.getpid()}"
     try:
         data_dir.mkdir(parents=True, exist_ok=True)
-        _remove_stale_temps(data_dir, spec)
+        for old in data_dir.glob(f".{spec.root}.unpacking-*"):  # left by killed unpacks
+            try:
+                os.kill(int(old.name.rsplit("-", 1)[1]), 0)
+            except (ValueError, ProcessLookupError):  # its process is gone
+                shutil.rmtree(old, ignore_errors=True)
+            except PermissionError:
+                pass  # a live process of another user
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
     except OSError as exc:  # read-only, not a folder, or a file in the way
@@ -201,7 +165,7 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
         try:
             os.rename(tmp / spec.root, target)
         except OSError:
-            if not is_unpacked(data_dir, spec):
+            if not (data_dir / spec.marker).is_dir():
                 raise DataError(
                     f"cannot move the unpacked data to {target}: the folder exists but holds no "
                     f"{spec.marker}/ (fix: delete {target} and run again)"
@@ -218,21 +182,24 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
 
 
 def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
-    """Write the dataset members of ``archive`` under ``tmp``; a member whose bytes do not
-    match its CRC (or do not decompress) raises a DataError naming it."""
+    """Write the dataset members of ``archive`` under ``tmp``; a member that does not match
+    its CRC (or does not decompress) raises a DataError naming it."""
     member = None  # the member being read, named when the archive turns out damaged
     try:
         with zipfile.ZipFile(archive) as zf:
             for info in zf.infolist():
-                rel = _member_path(info.filename, spec.root, archive)
-                if rel is None or info.is_dir():
-                    continue
-                if stat.S_ISLNK(info.external_attr >> 16):
+                name = info.filename.replace("\\", "/")
+                parts = PurePosixPath(name).parts
+                absolute = name.startswith("/") or (parts and ":" in parts[0])
+                if absolute or ".." in parts or stat.S_ISLNK(info.external_attr >> 16):
                     raise DataError(
-                        f"{archive}: member {info.filename!r} is a symbolic link; refusing to "
-                        "unpack (fix: use the archive as distributed)"
+                        f"{archive}: unsafe member path {name!r} (absolute, with '..' or a "
+                        "symbolic link); refusing to unpack (fix: use the archive as distributed)"
                     )
-                dest = tmp / rel
+                # Members outside the dataset folder (__MACOSX/, a README) are skipped.
+                if spec.root not in parts or info.is_dir():
+                    continue
+                dest = tmp.joinpath(*parts[parts.index(spec.root) :])
                 dest.parent.mkdir(parents=True, exist_ok=True)
                 member = info.filename
                 with zf.open(info) as src, open(dest, "wb") as out:
@@ -248,26 +215,13 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
         ) from None
 
 
-def _remove_stale_temps(data_dir: Path, spec: DatasetSpec) -> None:
-    """Delete temp folders left by killed unpacks (only those whose process is gone)."""
-    for old in data_dir.glob(f".{spec.root}.unpacking-*"):
-        try:
-            os.kill(int(old.name.rsplit("-", 1)[1]), 0)
-        except (ValueError, ProcessLookupError):
-            shutil.rmtree(old, ignore_errors=True)
-        except PermissionError:
-            pass  # a live process of another user
-
-
-def check_missing(
-    spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool
-) -> None:
+def check_missing(spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool):
     """Full protocol: raise listing every missing file. Partial mode: the datamodule's setup
     warns, saying what it reads and does without them."""
     if not missing or allow_partial:
         return
     listing = "\n  ".join(missing)
-    raise DataNotFoundError(
+    raise DataError(
         f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
         f"  {listing}\n"
         f"The full protocol needs all of them. Fix: get the complete archive "

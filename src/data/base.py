@@ -1,20 +1,15 @@
-"""The LightningDataModule shared by H3.6M and CMU.
-
-Pipeline (each step cites the protocol):
-text files -> (cache) raw 50 Hz float32 arrays -> Normalizer from the raw training frames (§2.1)
--> even-frame downsampling (§1.3) -> normalised used dimensions -> training windows drawn per
-§1.4 / §1.5 and a fixed list of evaluation windows (§3; or the project's ``random`` /
-``strided`` protocols).
-
-With a partial copy of the data, ``allow_partial=False`` (the full protocol) raises listing every
-missing file; ``allow_partial=True`` trains on what exists and lists each action that cannot be
-evaluated in ``absent_actions`` with the reason, so it is reported as absent, never as zero.
-"""
+"""The LightningDataModule shared by H3.6M and CMU: text files -> (cache) raw 50 Hz arrays ->
+Normalizer of the raw training frames (protocol §2.1) -> even frames (§1.3) -> normalised used
+dimensions -> training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or the
+``random`` / ``strided`` protocols). A partial copy of the data is refused, listing every missing
+file, or with ``allow_partial`` used as it is, each action that cannot be evaluated reported in
+``absent_actions`` with the reason: absent, never zero."""
 
 from __future__ import annotations
 
 import logging
 import os
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 
@@ -25,7 +20,7 @@ from torch.utils.data import DataLoader
 
 from src.data.archive import check_missing, ensure_dataset, resolve_data_dir
 from src.data.cache import load_sequences
-from src.data.datasets import EvalWindowDataset, TrainWindowSampler, WindowDataset
+from src.data.datasets import TrainWindowSampler, WindowDataset
 from src.data.errors import DataError
 from src.data.layout import DatasetSpec, FileEntry, missing_files, parse_actions
 from src.data.normalization import Normalizer
@@ -38,11 +33,8 @@ EVAL_PROTOCOLS = ("srnn", "random", "strided")
 
 @dataclass(frozen=True)
 class EvalWindow:
-    """One evaluation window: frames [start, start + observed_len + future_len) of ``sequence``.
-
-    ``sequence`` is the file key (``S5/walking_1``, ``test/walking/walking_1``); ``subaction`` is
-    the H3.6M subaction (1 or 2) or the CMU file number k.
-    """
+    """Frames [start, start + window_len) of ``sequence`` (the file key, ``S5/walking_1``);
+    ``subaction`` is the H3.6M subaction (1 or 2) or the CMU file number k."""
 
     action: str
     sequence: str
@@ -51,15 +43,13 @@ class EvalWindow:
 
 
 def window_ids(windows: Iterable[EvalWindow]) -> list[str]:
-    """One name per window, `<sequence>@<start>`: ``S5/walking_1@1087`` (subject 5, subaction 1)
-    or ``test/walking/walking_1@344`` (CMU file), the start counted in downsampled frames
-    (protocol §1.3). The random protocol may draw a window twice; its k-th repeat is named
-    ``...@start#k`` (k = 2, 3, ...), so that every window of a protocol has its own name."""
-    seen: dict[str, int] = {}
+    """One name per window, ``<sequence>@<start>`` (``S5/walking_1@1087``, in downsampled frames,
+    §1.3); a window the random protocol draws again is ``...@start#k``, k = 2, 3, ..."""
+    seen: Counter[str] = Counter()
     out = []
     for w in windows:
         name = f"{w.sequence}@{w.start}"
-        seen[name] = seen.get(name, 0) + 1
+        seen[name] += 1
         out.append(name if seen[name] == 1 else f"{name}#{seen[name]}")
     return out
 
@@ -71,20 +61,20 @@ def _positive(name: str, value, minimum: int = 1) -> int:
 
 
 class MotionDataModule(L.LightningDataModule):
-    """Common loading, normalisation and windowing; subclasses say which files and test windows."""
+    """Loading, normalisation and windowing. Subclasses give ``expected_files()``, the (training,
+    test) FileEntry lists of the configured actions, and ``protocol_windows(lengths)``, the
+    reference test windows of one action as (index into its test files, start) pairs."""
 
     spec: DatasetSpec
-    dataset_name: str
+    dataset_name: str  # spec.name; a class attribute, read from the class by load_trained
     conv_padding: str  # "same" on H3.6M, "valid" on CMU (protocol §6.7)
-    # Milliseconds per downsampled frame, used for the horizon labels. 40 ms (25 fps) on H3.6M;
-    # CMU keeps 40 as the reference's table labels do, although its files are most likely
-    # 30 Hz after downsampling (protocol §1.5, [L] issue #4).
+    # Milliseconds per downsampled frame, for the horizon labels: 40 ms (25 fps) on H3.6M and, as
+    # the reference's tables have it, on CMU, most likely 30 Hz (protocol §1.5, [L] issue #4).
     frame_ms: int = 40
 
     def __init__(
         self,
-        spec: DatasetSpec,
-        data_dir: str | os.PathLike | None,
+        data_dir: str | os.PathLike | None = None,
         archive: str | os.PathLike | None = None,
         archive_dir: str | os.PathLike | None = None,
         actions: str | Iterable[str] = "all",
@@ -102,13 +92,14 @@ class MotionDataModule(L.LightningDataModule):
         seed: int = 0,
     ):
         super().__init__()
-        self.spec = spec
         self.data_dir = resolve_data_dir(data_dir)
-        self.archive = archive
-        self.archive_dir = archive_dir
-        self.actions = parse_actions(actions, spec)
+        self.archive, self.archive_dir = archive, archive_dir
+        self.num_features = self.spec.n_columns
+        self.actions = parse_actions(actions, self.spec)
+        self.num_actions = len(self.actions)
         self.observed_len = _positive("observed_len", observed_len)
         self.future_len = _positive("future_len", future_len)
+        self.window_len = self.observed_len + self.future_len
         self.batch_size = _positive("batch_size", batch_size)
         self.eval_batch_size = _positive("eval_batch_size", eval_batch_size)
         self.steps_per_epoch = _positive("steps_per_epoch", steps_per_epoch)
@@ -125,58 +116,27 @@ class MotionDataModule(L.LightningDataModule):
         self.allow_partial = bool(allow_partial)
         self.num_workers = _positive("num_workers", num_workers, 0)
         self.seed = _positive("seed", seed, 0)
-        self.draws_per_step = 1
+        self.draws_per_step = 1  # 2 with a discriminator: set by the LightningModule
         self.resume_iteration = 0  # set by src.train when it resumes a checkpoint
-
-        # Filled by setup().
         self.normalizer: Normalizer | None = None
         self.eval_windows: list[EvalWindow] = []
         self.absent_actions: dict[str, str] = {}
         self.missing_files: list[str] = []
         self.untrained_actions: list[str] = []  # configured actions without any training file
-        self._train_dataset: WindowDataset | None = None
-        self._eval_dataset: EvalWindowDataset | None = None
-        self._test_raw: dict[str, np.ndarray] = {}
-        self._test_entries: dict[str, list[FileEntry]] = {}
         self._given_normalizer: Normalizer | None = None
         self._stage: str | None = None
 
     def set_normalizer(self, normalizer: Normalizer) -> None:
-        """Use these statistics (a checkpoint's) instead of the training files' ones. Evaluation
-        (`setup("validate"|"test")`) then reads only the test files."""
+        """A checkpoint's statistics: then setup("validate"|"test") reads only the test files."""
         self._given_normalizer = normalizer
 
     @property
     def _eval_only(self) -> bool:
         return self._given_normalizer is not None and self._stage != "fit"
 
-    # ---- dataset-specific parts -------------------------------------------------------------
-
-    def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
-        """(training files, test files) of the configured actions (and subjects)."""
-        raise NotImplementedError
-
-    def protocol_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
-        """The reference test windows of one action: (index into its test files, start)."""
-        raise NotImplementedError
-
-    # ---- public attributes ------------------------------------------------------------------
-
-    @property
-    def num_actions(self) -> int:
-        return len(self.actions)
-
-    @property
-    def num_features(self) -> int:
-        return self.spec.n_columns
-
     @property
     def pose_dim(self) -> int:
         return self._require_setup().pose_dim
-
-    @property
-    def window_len(self) -> int:
-        return self.observed_len + self.future_len
 
     def _require_setup(self) -> Normalizer:
         if self.normalizer is None:
@@ -184,8 +144,6 @@ class MotionDataModule(L.LightningDataModule):
                 f"{type(self).__name__}: call prepare_data() and setup() before using the data"
             )
         return self.normalizer
-
-    # ---- Lightning hooks --------------------------------------------------------------------
 
     def prepare_data(self) -> None:
         """Unpack the archive if needed and parse every present file into the cache."""
@@ -205,23 +163,17 @@ class MotionDataModule(L.LightningDataModule):
     def _warn_missing(self, train: list[FileEntry]) -> None:
         """data.allow_partial=true: what is missing, counted by kind, and what is done."""
         n_train = sum(e.relpath in self.missing_files for e in train)
-        n_test = len(self.missing_files) - n_train
         if self._eval_only:
             kind, doing = "test ", "evaluating with"
             counted = "training files are not needed: the checkpoint holds the normalisation"
         else:
-            kind, counted = "", f"{n_train} training, {n_test} test"
+            kind, counted = "", f"{n_train} training, {len(self.missing_files) - n_train} test"
             doing = "training on" if self._stage == "fit" else "normalising and evaluating with"
         log.warning(
-            "data.allow_partial=true: %d %s %sfile(s) are missing under %s (%s); %s the files "
-            "that exist, the actions without their test files reported as absent:\n  %s",
-            len(self.missing_files),
-            self.spec.name,
-            kind,
-            self.data_dir,
-            counted,
-            doing,
-            "\n  ".join(self.missing_files),
+            f"data.allow_partial=true: {len(self.missing_files)} {self.spec.name} {kind}file(s) "
+            f"are missing under {self.data_dir} ({counted}); {doing} the files that exist, the "
+            "actions without their test files reported as absent:\n  "
+            + "\n  ".join(self.missing_files)
         )
 
     def setup(self, stage: str | None = None) -> None:
@@ -247,20 +199,12 @@ class MotionDataModule(L.LightningDataModule):
             [raw[e.relpath] for e in train]
         )
         label = {a: i for i, a in enumerate(self.actions)}
-
-        def prepare(entry: FileEntry) -> torch.Tensor:
-            frames = torch.from_numpy(raw[entry.relpath][::2].copy())  # even raw frames, §1.3
-            return normalizer.normalize(frames)
-
-        train_seqs = [prepare(e) for e in train]
-        self._train_dataset = (
-            None
-            if self._eval_only
-            else WindowDataset(
-                train_seqs, [label[e.action] for e in train], self.observed_len, self.future_len
-            )
+        frames = [torch.from_numpy(raw[e.relpath][::2].copy()) for e in train]  # even frames, §1.3
+        seqs = [normalizer.normalize(f) for f in frames]
+        self._train_lengths = [len(s) for s in seqs]
+        self._train_dataset = WindowDataset(
+            seqs, [label[e.action] for e in train], self.observed_len, self.future_len
         )
-        self._train_lengths = [len(s) for s in train_seqs]
         trained = {e.action for e in train}
         self.untrained_actions = [a for a in self.actions if a not in trained]
         if self.untrained_actions and not self._eval_only:
@@ -270,32 +214,22 @@ class MotionDataModule(L.LightningDataModule):
             )
 
         # Evaluation windows, action by action in canonical order.
-        self.absent_actions = {}
-        self.eval_windows = []
+        self.absent_actions, self.eval_windows = {}, []
         self._test_entries = {a: [e for e in test if e.action == a] for a in self.actions}
         self._test_raw = {e.key: raw[e.relpath][::2].copy() for e in present_test}
-        eval_seqs: list[torch.Tensor] = []
-        eval_labels: list[int] = []
-        pairs: list[tuple[int, int]] = []
-        for action in self.actions:
-            entries = self._test_entries[action]
+        for action, entries in self._test_entries.items():
             absent = [e.relpath for e in entries if e.relpath in missing]
             if absent:
                 self.absent_actions[action] = "missing test file(s): " + ", ".join(absent)
                 continue
-            lengths = [len(self._test_raw[e.key]) for e in entries]
             try:
-                windows = self._action_windows(lengths)
+                windows = self._action_windows([len(self._test_raw[e.key]) for e in entries])
             except DataError as exc:
                 self.absent_actions[action] = f"test sequences too short ({exc})"
                 continue
-            first = len(eval_seqs)
-            eval_seqs.extend(prepare(e) for e in entries)
-            eval_labels.extend(label[action] for _ in entries)
-            for idx, start in windows:
-                e = entries[idx]
-                self.eval_windows.append(EvalWindow(action, e.key, e.index, start))
-                pairs.append((first + idx, start))
+            self.eval_windows += [
+                EvalWindow(action, entries[i].key, entries[i].index, s) for i, s in windows
+            ]
         if self.absent_actions:
             log.warning(
                 "%d action(s) cannot be evaluated and are reported as absent: %s",
@@ -307,16 +241,16 @@ class MotionDataModule(L.LightningDataModule):
                 f"no configured action can be evaluated: {self.absent_actions} (fix: provide the "
                 "test files listed above)"
             )
-        eval_base = WindowDataset(eval_seqs, eval_labels, self.observed_len, self.future_len)
-        self._eval_dataset = EvalWindowDataset(eval_base, pairs)
+        seqs = {k: normalizer.normalize(torch.from_numpy(f)) for k, f in self._test_raw.items()}
+        labels = {e.key: label[e.action] for e in present_test}
+        pairs = [(w.sequence, w.start) for w in self.eval_windows]
+        self._eval_dataset = WindowDataset(seqs, labels, self.observed_len, self.future_len, pairs)
         self.normalizer = normalizer
 
     def leave_out(self, absent: dict[str, str]) -> None:
         """Evaluate without the windows of these actions, reported absent with the reason."""
-        keep = [i for i, w in enumerate(self.eval_windows) if w.action not in absent]
-        self.eval_windows = [self.eval_windows[i] for i in keep]
-        pairs = [self._eval_dataset.windows[i] for i in keep]
-        self._eval_dataset = EvalWindowDataset(self._eval_dataset.base, pairs)
+        self.eval_windows = [w for w in self.eval_windows if w.action not in absent]
+        self._eval_dataset.windows = [(w.sequence, w.start) for w in self.eval_windows]
         self.absent_actions.update(absent)
 
     def _action_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
@@ -332,24 +266,21 @@ class MotionDataModule(L.LightningDataModule):
             raise DataError(f"no {self.window_len}-frame window fits in lengths {lengths}")
         return windows
 
-    # ---- loaders ----------------------------------------------------------------------------
-
-    def _loader_kwargs(self) -> dict:
-        # A generator of the loader's own: creating an iterator draws a base seed for the
-        # workers, which would otherwise come from the global generator that the dropout masks
-        # use. A resumed run creates its iterator at a different point than the run it continues
-        # (mid-epoch), so that draw would shift every later mask.
-        return {
-            "num_workers": self.num_workers,
-            "persistent_workers": self.num_workers > 0,
-            "generator": torch.Generator().manual_seed(self.seed),
-            # Pinned batches let the Trainer's copy to the GPU run without blocking the host.
-            "pin_memory": self._on_gpu(),
-        }
-
-    def _on_gpu(self) -> bool:
+    def _loader(self, dataset: WindowDataset, **kwargs) -> DataLoader:
         trainer = getattr(self, "trainer", None)
-        return trainer is not None and trainer.strategy.root_device.type == "cuda"
+        return DataLoader(
+            dataset,
+            num_workers=self.num_workers,
+            persistent_workers=self.num_workers > 0,
+            # A generator of the loader's own: creating an iterator draws a base seed for the
+            # workers, which would otherwise come from the global generator that the dropout
+            # masks use. A resumed run creates its iterator at another point than the run it
+            # continues (mid-epoch), so that draw would shift every later mask.
+            generator=torch.Generator().manual_seed(self.seed),
+            # Pinned batches let the Trainer's copy to the GPU run without blocking the host.
+            pin_memory=trainer is not None and trainer.strategy.root_device.type == "cuda",
+            **kwargs,
+        )
 
     def train_dataloader(self) -> DataLoader:
         self._require_setup()
@@ -364,38 +295,24 @@ class MotionDataModule(L.LightningDataModule):
         )
         # A resume from a checkpoint written between validations continues its epoch.
         sampler.start_step = self.resume_iteration % self.steps_per_epoch
-        return DataLoader(self._train_dataset, batch_sampler=sampler, **self._loader_kwargs())
-
-    def _eval_loader(self) -> DataLoader:
-        self._require_setup()
-        return DataLoader(
-            self._eval_dataset,
-            batch_size=self.eval_batch_size,
-            shuffle=False,
-            **self._loader_kwargs(),
-        )
+        return self._loader(self._train_dataset, batch_sampler=sampler)
 
     def val_dataloader(self) -> DataLoader:
         """The test windows: the protocol has no validation split (protocol §8)."""
-        return self._eval_loader()
+        self._require_setup()
+        return self._loader(self._eval_dataset, batch_size=self.eval_batch_size, shuffle=False)
 
-    def test_dataloader(self) -> DataLoader:
-        return self._eval_loader()
+    test_dataloader = val_dataloader
 
     def raw_window(self, index: int) -> np.ndarray:
-        """Downsampled raw (unnormalised, F columns) frames of ``eval_windows[index]``:
-        observed_len observed frames, then future_len future ones."""
+        """Downsampled raw (F columns) frames of ``eval_windows[index]``, observed then future."""
         self._require_setup()
         w = self.eval_windows[index]
         return self._test_raw[w.sequence][w.start : w.start + self.window_len].copy()
 
-    # ---- visualisation ----------------------------------------------------------------------
-
     def test_sequence(self, action: str, index: int = 0) -> np.ndarray:
-        """Downsampled raw (unnormalised, F columns) test sequence ``index`` of ``action``.
-
-        ``index`` 0 is subaction 1 on H3.6M and file ``{action}_1`` on CMU.
-        """
+        """Downsampled raw (unnormalised, F columns) test sequence ``index`` of ``action``:
+        index 0 is subaction 1 on H3.6M and file ``{action}_1`` on CMU."""
         self._require_setup()
         if action not in self._test_entries:
             raise DataError(f"action {action!r} is not configured; configured: {self.actions}")

@@ -1,18 +1,13 @@
-"""Parse each motion text file once and keep a binary copy under ``<data_dir>/cache/<dataset>/``.
-
-One ``.npy`` per source file plus ``manifest.json`` recording each source's size and
-``mtime_ns``. A source whose size or mtime changed, a new source and a source that disappeared
-all update just their own entry. Every write goes to a temporary file that is renamed into
-place, so a killed run leaves either the old or the new file, never a torn one; a cache file
-that cannot be read back (or has the wrong shape) is simply parsed again.
-"""
+"""Parse each motion text file once and keep a binary copy under ``<data_dir>/cache/<dataset>/``:
+one ``.npy`` per file plus ``manifest.json`` with each source's size and ``mtime_ns``, so a
+changed, new or vanished source updates just its own entry. Writes are atomic; a cache file that
+does not read back with the right shape is parsed again."""
 
 from __future__ import annotations
 
 import json
 import logging
 import os
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -35,11 +30,9 @@ def cache_dir(data_dir: str | os.PathLike, spec: DatasetSpec) -> Path:
 def load_sequences(
     data_dir: str | os.PathLike, spec: DatasetSpec, relpaths: Sequence[str]
 ) -> dict[str, np.ndarray]:
-    """Raw (50 Hz, all columns) float32 arrays of ``relpaths`` (relative to ``data_dir``).
-
-    Uses the cache where it is valid and parses (then caches) the rest. If the cache folder is
-    not writable the files are parsed every time, with a warning.
-    """
+    """Raw (50 Hz, all columns) float32 arrays of ``relpaths`` (relative to ``data_dir``), from
+    the cache where it is valid, else parsed (and cached; if the cache folder is not writable,
+    parsed every time, with a warning)."""
     data_dir = Path(data_dir)
     folder = cache_dir(data_dir, spec)
     manifest = _read_manifest(folder, spec)
@@ -47,20 +40,9 @@ def load_sequences(
     out: dict[str, np.ndarray] = {}
     todo: list[tuple[str, os.stat_result]] = []
     for rel in relpaths:
-        try:
-            st = (data_dir / rel).stat()
-        except FileNotFoundError:
-            st = None
+        st = (data_dir / rel).stat() if (data_dir / rel).is_file() else None  # None: reader says
         entry = entries.get(rel)
-        if (
-            st is not None
-            and entry
-            and (entry["size"], entry["mtime_ns"])
-            == (
-                st.st_size,
-                st.st_mtime_ns,
-            )
-        ):
+        if st and entry and (entry["size"], entry["mtime_ns"]) == (st.st_size, st.st_mtime_ns):
             arr = _load_npy(folder / entry["npy"], entry["frames"], spec.n_columns)
             if arr is not None:
                 out[rel] = arr
@@ -69,15 +51,11 @@ def load_sequences(
 
     writable = True
     if todo:
-        log.info(
-            "parsing %d %s text file(s); cached afterwards in %s", len(todo), spec.name, folder
-        )
-        t0 = time.perf_counter()
+        log.info("parsing %d %s text file(s) into the cache %s", len(todo), spec.name, folder)
     for rel, st in todo:
         # stat taken before reading: if the file changes while we read it, the entry is stale
         # and the next run parses it again.
-        arr = read_motion_file(data_dir / rel, spec.n_columns)
-        out[rel] = arr
+        arr = out[rel] = read_motion_file(data_dir / rel, spec.n_columns)
         if writable:
             npy = rel.replace("/", "__").removesuffix(".txt") + ".npy"
             try:
@@ -86,14 +64,7 @@ def load_sequences(
                 writable = False
                 log.warning("cannot write the cache in %s (%s); parsing every time", folder, exc)
                 continue
-            entries[rel] = {
-                "size": st.st_size,
-                "mtime_ns": st.st_mtime_ns,
-                "frames": int(arr.shape[0]),
-                "npy": npy,
-            }
-    if todo:
-        log.info("parsed %d file(s) in %.1f s", len(todo), time.perf_counter() - t0)
+            entries[rel] = dict(size=st.st_size, mtime_ns=st.st_mtime_ns, frames=len(arr), npy=npy)
 
     # Forget entries whose source file is gone (they would never be valid again).
     gone = [rel for rel in entries if not (data_dir / rel).is_file()]
@@ -109,27 +80,15 @@ def load_sequences(
 
 
 def _read_manifest(folder: Path, spec: DatasetSpec) -> dict:
-    fresh = {
-        "version": CACHE_VERSION,
-        "dataset": spec.name,
-        "n_columns": spec.n_columns,
-        "files": {},
-    }
     try:
         manifest = json.loads((folder / MANIFEST).read_text())
-    except (OSError, ValueError):
-        return fresh
-    ok = (
-        isinstance(manifest, dict)
-        and manifest.get("version") == CACHE_VERSION
-        and manifest.get("n_columns") == spec.n_columns
-        and isinstance(manifest.get("files"), dict)
-        and all(
-            isinstance(e, dict) and {"size", "mtime_ns", "frames", "npy"} <= e.keys()
-            for e in manifest["files"].values()
-        )
-    )
-    return manifest if ok else fresh
+        files = manifest["files"]
+        same = (manifest["version"], manifest["n_columns"]) == (CACHE_VERSION, spec.n_columns)
+        if same and all({"size", "mtime_ns", "frames", "npy"} <= e.keys() for e in files.values()):
+            return manifest
+    except (OSError, ValueError, LookupError, TypeError, AttributeError):
+        pass  # unreadable or of another version: start afresh
+    return dict(version=CACHE_VERSION, dataset=spec.name, n_columns=spec.n_columns, files={})
 
 
 def _load_npy(path: Path, frames: int, n_columns: int) -> np.ndarray | None:
@@ -137,6 +96,4 @@ def _load_npy(path: Path, frames: int, n_columns: int) -> np.ndarray | None:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError):
         return None
-    if arr.dtype != np.float32 or arr.shape != (frames, n_columns):
-        return None
-    return arr
+    return arr if arr.dtype == np.float32 and arr.shape == (frames, n_columns) else None

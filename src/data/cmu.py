@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-from collections.abc import Iterable
-
 from src.data.base import MotionDataModule
 from src.data.layout import CMU, FileEntry, cmu_files
 from src.data.windows import cmu_test_starts
@@ -18,47 +15,8 @@ class CMUDataModule(MotionDataModule):
     VALID convolution padding (§6.7).
     """
 
-    dataset_name = "cmu"
+    spec, dataset_name = CMU, "cmu"
     conv_padding = "valid"
-
-    def __init__(
-        self,
-        data_dir: str | os.PathLike | None,
-        archive: str | os.PathLike | None = None,
-        archive_dir: str | os.PathLike | None = None,
-        actions: str | Iterable[str] = "all",
-        observed_len: int = 50,
-        future_len: int = 25,
-        batch_size: int = 16,
-        eval_batch_size: int = 256,
-        steps_per_epoch: int = 1000,
-        eval_protocol: str = "srnn",
-        eval_windows_per_action: int = 256,
-        eval_stride: int = 10,
-        eval_seed: int = 1234567890,
-        allow_partial: bool = False,
-        num_workers: int = 0,
-        seed: int = 0,
-    ):
-        super().__init__(
-            CMU,
-            data_dir,
-            archive,
-            archive_dir,
-            actions,
-            observed_len,
-            future_len,
-            batch_size,
-            eval_batch_size,
-            steps_per_epoch,
-            eval_protocol,
-            eval_windows_per_action,
-            eval_stride,
-            eval_seed,
-            allow_partial,
-            num_workers,
-            seed,
-        )
 
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
         return cmu_files(self.actions, "train"), cmu_files(self.actions, "test")

@@ -1,13 +1,7 @@
-"""Torch datasets over downsampled, normalised sequences, and the training batch sampler.
-
-Items are dicts: ``observed (observed_len, D)`` float32, ``future (future_len, D)`` float32,
-``action`` long and, for evaluation, ``window`` long (index into ``datamodule.eval_windows``).
-
+"""The torch dataset over downsampled, normalised sequences, and the training batch sampler.
 Training follows the reference sampling (protocol §1.4): for every window, a sequence drawn
 uniformly over sequences with replacement (not weighted by length), then a start uniform in the
-dataset's range. There is no epoch over a finite set of windows; an "epoch" is simply
-``steps_per_epoch`` batches.
-"""
+dataset's range. An "epoch" is ``steps_per_epoch`` batches, not a pass over a set of windows."""
 
 from __future__ import annotations
 
@@ -22,66 +16,43 @@ from src.data.errors import DataError
 
 
 class WindowDataset(Dataset):
-    """Windows addressed by (sequence index, start) pairs; used with :class:`TrainWindowSampler`."""
+    """Windows addressed by (sequence, start) pairs as TrainWindowSampler draws them, or by
+    position i in the evaluation list ``windows`` of such pairs (the sequence an index or key of
+    ``sequences`` and ``actions``). Items: ``observed (observed_len, D)``, ``future (future_len,
+    D)``, ``action`` and, by position, ``window`` = i (the index into ``dm.eval_windows``)."""
 
-    def __init__(
-        self,
-        sequences: Sequence[Tensor],
-        actions: Sequence[int],
-        observed_len: int,
-        future_len: int,
-    ):
-        self.sequences = list(sequences)
-        self.actions = [int(a) for a in actions]
-        self.observed_len = observed_len
-        self.future_len = future_len
-
-    def window(self, seq: int, start: int) -> dict[str, Tensor]:
-        frames = self.sequences[seq][start : start + self.observed_len + self.future_len]
-        return {
-            "observed": frames[: self.observed_len],
-            "future": frames[self.observed_len :],
-            "action": torch.tensor(self.actions[seq], dtype=torch.long),
-        }
-
-    def __getitem__(self, index: tuple[int, int]) -> dict[str, Tensor]:
-        seq, start = index
-        return self.window(seq, start)
-
-
-class EvalWindowDataset(Dataset):
-    """A fixed list of (sequence index, start) windows; item i carries ``window = i``."""
-
-    def __init__(self, base: WindowDataset, windows: Sequence[tuple[int, int]]):
-        self.base = base
+    def __init__(self, sequences, actions, observed_len: int, future_len: int, windows=()):
+        self.sequences, self.actions = sequences, actions
+        self.observed_len, self.future_len = observed_len, future_len
         self.windows = list(windows)
 
     def __len__(self) -> int:
         return len(self.windows)
 
-    def __getitem__(self, i: int) -> dict[str, Tensor]:
-        item = self.base.window(*self.windows[i])
-        item["window"] = torch.tensor(i, dtype=torch.long)
+    def __getitem__(self, index: int | tuple[int | str, int]) -> dict[str, Tensor]:
+        seq, start = index if isinstance(index, tuple) else self.windows[index]
+        frames = self.sequences[seq][start : start + self.observed_len + self.future_len]
+        item = {
+            "observed": frames[: self.observed_len],
+            "future": frames[self.observed_len :],
+            "action": torch.tensor(self.actions[seq], dtype=torch.long),
+        }
+        if not isinstance(index, tuple):
+            item["window"] = torch.tensor(index, dtype=torch.long)
         return item
 
 
-def _rank_and_world() -> tuple[int, int]:
-    if torch.distributed.is_available() and torch.distributed.is_initialized():
-        return torch.distributed.get_rank(), torch.distributed.get_world_size()
-    return 0, 1
+def _rank() -> int:
+    dist = torch.distributed
+    return dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
 
 
 class TrainWindowSampler(Sampler):
     """Yields ``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs.
-
     The generator of epoch e on DDP rank r is seeded from (seed, e, r): an epoch is reproducible
-    and can be resumed at its start, and ranks draw different windows without a
-    DistributedSampler (each rank yields ``steps_per_epoch`` batches of its own). Lightning
-    calls ``set_epoch`` before every epoch: its ``_set_sampler_epoch`` looks at
-    ``dataloader.sampler`` and ``dataloader.batch_sampler.sampler``, not at the batch sampler
-    itself, hence the ``sampler`` property returning ``self``. Under DDP, run the Trainer with
-    ``use_distributed_sampler=False`` so that Lightning does not try to wrap this sampler.
-    """
+    and resumable, and ranks draw different windows without a DistributedSampler (run the
+    Trainer with ``use_distributed_sampler=False``). Lightning calls ``set_epoch`` on
+    ``dataloader.batch_sampler.sampler``, hence the ``sampler`` property returning ``self``."""
 
     def __init__(
         self,
@@ -94,25 +65,15 @@ class TrainWindowSampler(Sampler):
         seed: int = 0,
     ):
         super().__init__()
-        if batch_size < 1 or steps_per_epoch < 1 or draws_per_step < 1:
-            raise DataError(
-                f"batch_size, steps_per_epoch and draws_per_step must be >= 1, got "
-                f"{batch_size}, {steps_per_epoch}, {draws_per_step}"
-            )
-        highs = np.asarray(lengths, dtype=np.int64) - window_len
-        self.eligible = np.flatnonzero(highs > low)
+        self.highs = np.asarray(lengths, dtype=np.int64) - window_len
+        self.eligible = np.flatnonzero(self.highs > low)
         if self.eligible.size == 0:
             raise DataError(
                 f"no training sequence is long enough for a {window_len}-frame window "
                 f"(lengths {list(lengths)}); shorten data.future_len"
             )
-        self.highs = highs
-        self.low = low
-        self.batch_size = batch_size
-        self.steps_per_epoch = steps_per_epoch
-        self.draws_per_step = draws_per_step
-        self.seed = seed
-        self.epoch = 0
+        self.low, self.batch_size, self.steps_per_epoch = low, batch_size, steps_per_epoch
+        self.draws_per_step, self.seed, self.epoch = draws_per_step, seed, 0
         # Batches of the current epoch already trained on before a mid-epoch resume: drawn
         # and dropped once, so the resumed run sees the batches the killed one would have.
         self.start_step = 0
@@ -128,8 +89,7 @@ class TrainWindowSampler(Sampler):
         return self.steps_per_epoch
 
     def __iter__(self) -> Iterator[list[tuple[int, int]]]:
-        rank, _ = _rank_and_world()
-        rng = np.random.default_rng([self.seed, self.epoch, rank])
+        rng = np.random.default_rng([self.seed, self.epoch, _rank()])
         n = self.batch_size * self.draws_per_step
         skip, self.start_step = self.start_step, 0
         for step in range(self.steps_per_epoch):

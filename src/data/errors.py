@@ -1,27 +1,12 @@
-"""Exceptions of the data layer.
-
-Every problem with the user's data (missing archive, missing files, malformed text, bad
-arguments) raises a :class:`DataError` whose message names the file (and line) and the fix,
-so that a user never has to read a numpy traceback to find out what is wrong.
-"""
+"""Errors of the data layer: each message names the file (and line) and the fix, so that a user
+never has to read a numpy traceback to find out what is wrong with the data."""
 
 from __future__ import annotations
 
 
 class DataError(Exception):
-    """A problem with the motion data or with how the data layer was configured."""
-
-
-class DataFormatError(DataError):
-    """A motion text file is malformed (wrong column count, non-numeric or non-finite value)."""
-
-
-class DataNotFoundError(DataError):
-    """The dataset, its archive or some of its files cannot be found.
-
-    ``missing`` lists the missing files relative to the data directory (empty when the whole
-    dataset is absent).
-    """
+    """A problem with the motion data or with how the data layer was configured; ``missing``
+    lists the missing files (relative to data_dir) where that is the problem."""
 
     def __init__(self, message: str, missing: list[str] | None = None):
         super().__init__(message)

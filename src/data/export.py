@@ -1,15 +1,11 @@
-"""The protocol's test windows as plain arrays, for models outside this project.
-
-`python -m src.export_windows` writes them; `src.scoring` checks a predictions file against the
-same windows. Arrays, in the protocol's order (src.data.base: action by action, then as drawn):
-
-- ``observed`` (N, observed_len, F) and ``future`` (N, future_len, F): raw exp-map frames
-  (F = 99 on H3.6M, 117 on CMU), downsampled as everywhere in the protocol (§1.3), float32;
+"""The protocol's test windows as plain arrays for models outside this project (written by
+`python -m src.export_windows`, checked against predictions by `src.scoring`), in the protocol's
+order (action by action, then as drawn):
+- ``observed`` (N, observed_len, F), ``future`` (N, future_len, F): raw exp-map frames, float32,
+  downsampled as everywhere in the protocol (§1.3); F = 99 on H3.6M, 117 on CMU;
 - ``action`` (N,) and ``window_id`` (N,) strings (src.data.base.window_ids);
-- metadata, each a 0-d array: ``dataset`` (the data config's name), ``protocol``, ``fps`` (the
-  frame rate the tables' horizons assume: 25, which CMU's labels also use, protocol §1.5) and
-  ``data_sha256``, a checksum of the windows (see `windows_sha256`).
-"""
+- metadata, 0-d arrays: ``dataset`` (the data config's name), ``protocol``, ``fps`` (25, which the
+  tables' horizons assume, on CMU too, protocol §1.5), ``data_sha256`` (see `windows_sha256`)."""
 
 from __future__ import annotations
 
@@ -19,8 +15,6 @@ from collections.abc import Iterable
 import numpy as np
 
 from src.data.base import MotionDataModule, window_ids
-
-METADATA = ("dataset", "protocol", "fps", "data_sha256")
 
 
 def windows_sha256(ids: Iterable[str], frames: Iterable[np.ndarray]) -> str:

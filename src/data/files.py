@@ -9,9 +9,8 @@ from pathlib import Path
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
-    """Call `write(tmp)` to write a temporary file beside `path`, then rename it over `path`:
-    a reader (or a run killed mid-write) sees the old file or the new one, never half of one.
-    The temporary name keeps the suffix, for writers that add one (np.save)."""
+    """`write(tmp)` a temporary file beside `path` (same suffix, for np.save), renamed over `path`:
+    a reader, or a run killed mid-write, sees the old file or the new one, never half of one."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}{path.suffix}")
@@ -24,9 +23,8 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
 
 
 def claim_folder(base: str | os.PathLike) -> Path:
-    """Create and return `base`, or `base-1`, `base-2`, ... when taken: `os.mkdir` succeeds in
-    one process only, so runs started in the same second (a timestamp's resolution) get
-    folders of their own. Missing parents are created."""
+    """Create (with its parents) and return `base`, or `base-1`, `base-2`, ... when taken: mkdir
+    succeeds in one process only, so runs started in the same second get folders of their own."""
     base = Path(base)
     candidate, n = base, 0
     while True:

@@ -5,16 +5,10 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 
+from src.data import layout
 from src.data.base import MotionDataModule
 from src.data.errors import DataError
-from src.data.layout import (
-    H36M,
-    H36M_TEST_SUBJECT,
-    H36M_TRAIN_SUBJECTS,
-    FileEntry,
-    h36m_files,
-    parse_subjects,
-)
+from src.data.layout import FileEntry, h36m_files, parse_subjects
 from src.data.windows import SRNN_PREFIX, SRNN_SUFFIX, srnn_h36m_starts
 
 
@@ -22,52 +16,21 @@ class H36MDataModule(MotionDataModule):
     """H3.6M: train on subjects 1, 6, 7, 8, 9, 11, evaluate on subject 5 (protocol §1.2).
 
     ``eval_protocol="srnn"`` gives the reference's 8 windows per action (§3.1), alternating
-    subactions 1 and 2, whose starts do not depend on ``future_len``.
+    subactions 1 and 2, whose starts do not depend on ``future_len``. Every other argument is
+    MotionDataModule's.
     """
 
-    dataset_name = "h36m"
+    spec, dataset_name = layout.H36M, "h36m"
     conv_padding = "same"
 
     def __init__(
         self,
-        data_dir: str | os.PathLike | None,
-        archive: str | os.PathLike | None = None,
-        archive_dir: str | os.PathLike | None = None,
-        actions: str | Iterable[str] = "all",
-        train_subjects: Iterable[int] = H36M_TRAIN_SUBJECTS,
-        test_subject: int = H36M_TEST_SUBJECT,
-        observed_len: int = 50,
-        future_len: int = 25,
-        batch_size: int = 16,
-        eval_batch_size: int = 256,
-        steps_per_epoch: int = 1000,
-        eval_protocol: str = "srnn",
-        eval_windows_per_action: int = 256,
-        eval_stride: int = 10,
-        eval_seed: int = 1234567890,
-        allow_partial: bool = False,
-        num_workers: int = 0,
-        seed: int = 0,
+        data_dir: str | os.PathLike | None = None,
+        train_subjects: Iterable[int] = layout.H36M_TRAIN_SUBJECTS,
+        test_subject: int = layout.H36M_TEST_SUBJECT,
+        **kwargs,
     ):
-        super().__init__(
-            H36M,
-            data_dir,
-            archive,
-            archive_dir,
-            actions,
-            observed_len,
-            future_len,
-            batch_size,
-            eval_batch_size,
-            steps_per_epoch,
-            eval_protocol,
-            eval_windows_per_action,
-            eval_stride,
-            eval_seed,
-            allow_partial,
-            num_workers,
-            seed,
-        )
+        super().__init__(data_dir, **kwargs)
         self.train_subjects = parse_subjects(train_subjects, "data.train_subjects")
         (self.test_subject,) = parse_subjects([test_subject], "data.test_subject")
         if self.test_subject in self.train_subjects:
@@ -76,7 +39,7 @@ class H36MDataModule(MotionDataModule):
                 f"{self.train_subjects}; the protocol keeps them disjoint (fix: remove it from "
                 "data.train_subjects)"
             )
-        if eval_protocol == "srnn" and self.window_len > SRNN_PREFIX + SRNN_SUFFIX:
+        if self.eval_protocol == "srnn" and self.window_len > SRNN_PREFIX + SRNN_SUFFIX:
             raise DataError(
                 f"the srnn test windows reserve {SRNN_PREFIX + SRNN_SUFFIX} frames, but "
                 f"observed_len + future_len = {self.window_len} (fix: future_len <= "
@@ -90,6 +53,5 @@ class H36MDataModule(MotionDataModule):
         )
 
     def protocol_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
-        # lengths = [subaction 1, subaction 2]; index into them is subaction - 1.
-        starts = srnn_h36m_starts(lengths[0], lengths[1], seed=self.eval_seed)
-        return [(sub - 1, start) for sub, start in starts]
+        # lengths = [subaction 1, subaction 2]; the index into them is subaction - 1.
+        return [(sub - 1, s) for sub, s in srnn_h36m_starts(*lengths, seed=self.eval_seed)]

@@ -1,11 +1,8 @@
-"""Where the files of each dataset live, and which ones a configuration needs.
-
-H3.6M (protocol §1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns.
-CMU (protocol §1.5): ``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train
-files k = 1..5 and test file k = 1. Other folders (CMU ``walking_extra``) are never listed and
-therefore ignored. All paths here are relative to the data directory (``data.data_dir``), in the
-same form as the archive members and the data copy's MISSING.tsv.
-"""
+"""Where the files of each dataset live (paths relative to the data directory, as the archive
+members and MISSING.tsv write them), and which ones a configuration needs. H3.6M (protocol
+§1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns. CMU (§1.5):
+``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train files k = 1..5, test
+file k = 1; other folders (CMU ``walking_extra``) are never listed."""
 
 from __future__ import annotations
 
@@ -16,40 +13,18 @@ from pathlib import Path
 from src.data.errors import DataError
 
 # Protocol §1.2, in [M]'s define_actions order (the index is the action label).
-H36M_ACTIONS: tuple[str, ...] = (
-    "walking",
-    "eating",
-    "smoking",
-    "discussion",
-    "directions",
-    "greeting",
-    "phoning",
-    "posing",
-    "purchases",
-    "sitting",
-    "sittingdown",
-    "takingphoto",
-    "waiting",
-    "walkingdog",
-    "walkingtogether",
+H36M_ACTIONS: tuple[str, ...] = tuple(
+    "walking eating smoking discussion directions greeting phoning posing purchases sitting "
+    "sittingdown takingphoto waiting walkingdog walkingtogether".split()
 )
 H36M_SUBJECTS: tuple[int, ...] = (1, 5, 6, 7, 8, 9, 11)
 H36M_TRAIN_SUBJECTS: tuple[int, ...] = (1, 6, 7, 8, 9, 11)
 H36M_TEST_SUBJECT = 5
-
 # Protocol §1.5, [L] DataLoader_cmu.py order.
-CMU_ACTIONS: tuple[str, ...] = (
-    "basketball",
-    "basketball_signal",
-    "directing_traffic",
-    "jumping",
-    "running",
-    "soccer",
-    "walking",
-    "washwindow",
+CMU_ACTIONS: tuple[str, ...] = tuple(
+    "basketball basketball_signal directing_traffic jumping running soccer walking "
+    "washwindow".split()
 )
-CMU_TRAIN_FILES = 5
-CMU_TEST_FILES = 1
 
 
 @dataclass(frozen=True)
@@ -92,12 +67,9 @@ SPECS = {"h36m": H36M, "cmu": CMU}
 
 @dataclass(frozen=True)
 class FileEntry:
-    """One expected motion file.
-
-    ``key`` identifies the sequence everywhere else (cache, eval windows): ``S5/walking_1`` for
-    H3.6M, ``test/walking/walking_1`` for CMU. ``index`` is the subaction (H3.6M) or the file
-    number k (CMU), both 1-based as in the file names.
-    """
+    """One expected motion file. ``key`` names the sequence everywhere else (cache, eval
+    windows): ``S5/walking_1`` (H3.6M), ``test/walking/walking_1`` (CMU); ``index`` is the
+    subaction (H3.6M) or the file number k (CMU), 1-based as in the file names."""
 
     split: str  # "train" or "test"
     action: str
@@ -108,14 +80,11 @@ class FileEntry:
 
 
 def parse_actions(actions: str | Iterable[str], spec: DatasetSpec) -> list[str]:
-    """Return the configured actions in canonical order (the order defines the action labels).
-
-    Accepts ``"all"``, one name, a comma-separated string or a list of names.
-    """
+    """The configured actions (``"all"``, a name, a comma-separated string or a list) in
+    canonical order, which defines the action labels."""
     if isinstance(actions, str):
-        names = [a.strip() for a in actions.split(",") if a.strip()]
-    else:
-        names = [str(a).strip() for a in actions]
+        actions = actions.split(",")
+    names = [a for a in (str(a).strip() for a in actions) if a]
     if names == ["all"]:
         return list(spec.actions)
     unknown = [a for a in names if a not in spec.actions]
@@ -130,17 +99,13 @@ def parse_actions(actions: str | Iterable[str], spec: DatasetSpec) -> list[str]:
 def parse_subjects(subjects: int | Iterable[int], what: str) -> list[int]:
     """Validate H3.6M subject numbers (1, 5, 6, 7, 8, 9, 11)."""
     items = [subjects] if isinstance(subjects, int) else list(subjects)
-    try:
-        out = sorted({int(s) for s in items})
-    except (TypeError, ValueError):
-        raise DataError(f"{what} must be subject numbers, got {subjects!r}") from None
-    bad = [s for s in out if s not in H36M_SUBJECTS]
-    if bad or not out:
+    bad = [s for s in items if s not in H36M_SUBJECTS]
+    if bad or not items:
         raise DataError(
             f"{what}: unknown H3.6M subject(s) {bad or items!r}; valid subjects are "
             f"{', '.join(map(str, H36M_SUBJECTS))}"
         )
-    return out
+    return sorted({int(s) for s in items})
 
 
 def h36m_files(subjects: Sequence[int], actions: Sequence[str], split: str) -> list[FileEntry]:
@@ -155,7 +120,7 @@ def h36m_files(subjects: Sequence[int], actions: Sequence[str], split: str) -> l
 
 def cmu_files(actions: Sequence[str], split: str) -> list[FileEntry]:
     """The CMU files of ``actions``: train k = 1..5, test k = 1 (protocol §1.5)."""
-    count = CMU_TRAIN_FILES if split == "train" else CMU_TEST_FILES
+    count = 5 if split == "train" else 1
     return [
         FileEntry(split, a, k, None, f"{CMU.root}/{split}/{a}/{a}_{k}.txt", f"{split}/{a}/{a}_{k}")
         for a in actions
@@ -165,10 +130,4 @@ def cmu_files(actions: Sequence[str], split: str) -> list[FileEntry]:
 
 def missing_files(data_dir: str | Path, entries: Iterable[FileEntry]) -> list[str]:
     """Relative paths of the expected files that do not exist under ``data_dir``."""
-    data_dir = Path(data_dir)
-    return [e.relpath for e in entries if not (data_dir / e.relpath).is_file()]
-
-
-def is_unpacked(data_dir: str | Path, spec: DatasetSpec) -> bool:
-    """True when the dataset's folder exists under ``data_dir`` (files may still be missing)."""
-    return (Path(data_dir) / spec.marker).is_dir()
+    return [e.relpath for e in entries if not (Path(data_dir) / e.relpath).is_file()]

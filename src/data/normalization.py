@@ -1,14 +1,9 @@
-"""Per-column z-scoring and the used/ignored column split (protocol §2).
-
-Statistics come from the raw 50 Hz frames of all loaded training files (§2.1): population mean
-and std per column; a column is *used* iff its std >= 1e-4, and the std of ignored columns is
-reset to 1. ``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts the used
-columns back and fills the ignored ones with the training mean, exactly as the reference's
-zero-fill-then-scale does (§2.2).
-
-The module holds its statistics as buffers, so it is saved in (and restored from) every
-checkpoint of the LightningModule that owns it.
-"""
+"""Per-column z-scoring and the used/ignored column split (protocol §2). Statistics come from
+the raw 50 Hz frames of all loaded training files (§2.1): population mean and std per column; a
+column is *used* iff its std >= 1e-4, and the std of ignored columns is reset to 1.
+``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts them back and fills the
+ignored ones with the training mean, as the reference's zero-fill-then-scale does (§2.2). The
+statistics are buffers, so every checkpoint of the owning module holds them."""
 
 from __future__ import annotations
 
@@ -32,11 +27,6 @@ class Normalizer(nn.Module):
 
     def __init__(self, mean: Tensor, std: Tensor, used: Tensor):
         super().__init__()
-        if not (mean.shape == std.shape == used.shape and mean.dim() == 1):
-            raise DataError(
-                f"Normalizer needs 1-d mean, std and used of equal length, got "
-                f"{tuple(mean.shape)}, {tuple(std.shape)}, {tuple(used.shape)}"
-            )
         self.register_buffer("mean", mean.to(torch.float32).clone())
         self.register_buffer("std", std.to(torch.float32).clone())
         self.register_buffer("used", used.to(torch.bool).clone())
@@ -50,24 +40,14 @@ class Normalizer(nn.Module):
     def from_sequences(
         cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD
     ) -> Normalizer:
-        """Same statistics as ``from_frames(np.concatenate(sequences))``, without the copy.
-
-        Two passes in float64 (mean, then squared deviations), so the population std is exact
-        to float32 precision even for near-constant columns, which decide the used set.
-        """
+        """``from_frames(np.concatenate(sequences))`` without the copy. Two float64 passes (mean,
+        squared deviations): the near-constant columns, which decide the used set, come exact."""
         seqs = [np.asarray(s) for s in sequences]
-        if not seqs or any(s.ndim != 2 for s in seqs) or len({s.shape[1] for s in seqs}) != 1:
-            raise DataError(
-                "Normalizer statistics need one or more 2-d arrays (frames, features) with the "
-                f"same number of columns, got shapes {[s.shape for s in seqs]}"
-            )
-        n = sum(s.shape[0] for s in seqs)
+        n = sum(len(s) for s in seqs)
         if n == 0:
             raise DataError("Normalizer statistics need at least one training frame, got none")
-        total = sum(s.sum(axis=0, dtype=np.float64) for s in seqs)
-        mean = total / n
-        sq = sum(np.square(s.astype(np.float64) - mean).sum(axis=0) for s in seqs)
-        std = np.sqrt(sq / n)
+        mean = sum(s.sum(axis=0, dtype=np.float64) for s in seqs) / n
+        std = np.sqrt(sum(np.square(s.astype(np.float64) - mean).sum(axis=0) for s in seqs) / n)
         if not (np.isfinite(mean).all() and np.isfinite(std).all()):
             raise DataError(
                 "Normalizer statistics are not finite: the training frames hold NaN/inf"
@@ -79,26 +59,20 @@ class Normalizer(nn.Module):
     @classmethod
     def empty(cls, num_features: int) -> Normalizer:
         """Identity statistics of the right shape, to be overwritten by ``load_state_dict``."""
-        return cls(
-            torch.zeros(num_features),
-            torch.ones(num_features),
-            torch.ones(num_features, dtype=torch.bool),
-        )
+        ones = torch.ones(num_features)
+        return cls(torch.zeros(num_features), ones, ones.bool())
 
     @property
-    def num_features(self) -> int:
-        """F: raw columns (99 H3.6M, 117 CMU)."""
+    def num_features(self) -> int:  # F: raw columns (99 H3.6M, 117 CMU)
         return int(self.used.numel())
 
     @property
-    def pose_dim(self) -> int:
-        """D: used columns (54 H3.6M, 70 CMU)."""
+    def pose_dim(self) -> int:  # D: used columns (54 H3.6M, 70 CMU)
         return int(self.used.sum())
 
     @property
-    def dim_used(self) -> Tensor:
-        """Indices of the used columns (LongTensor of length D, ascending)."""
-        return torch.nonzero(self.used, as_tuple=False).flatten()
+    def dim_used(self) -> Tensor:  # indices of the used columns, ascending
+        return torch.nonzero(self.used).flatten()
 
     def _check(self, x: Tensor, size: int, name: str) -> None:
         if x.shape[-1] != size:
@@ -109,21 +83,13 @@ class Normalizer(nn.Module):
     def normalize(self, x: Tensor) -> Tensor:
         """(..., F) raw frames -> (..., D) normalised used dimensions (§2.1)."""
         self._check(x, self.num_features, "normalize")
-        mean = self.mean.to(device=x.device, dtype=x.dtype)
-        std = self.std.to(device=x.device, dtype=x.dtype)
-        return ((x - mean) / std).index_select(-1, self.dim_used.to(x.device))
+        return ((x - self.mean.to(x)) / self.std.to(x)).index_select(-1, self.dim_used.to(x.device))
 
     def unnormalize(self, z: Tensor) -> Tensor:
         """(..., D) normalised -> (..., F) raw; ignored columns come back as the mean (§2.2)."""
         self._check(z, self.pose_dim, "unnormalize")
         full = z.new_zeros(*z.shape[:-1], self.num_features)
         full = full.index_copy(-1, self.dim_used.to(z.device), z)
-        mean = self.mean.to(device=z.device, dtype=z.dtype)
-        std = self.std.to(device=z.device, dtype=z.dtype)
-        return full * std + mean
+        return full * self.std.to(z) + self.mean.to(z)
 
-    def forward(self, x: Tensor) -> Tensor:
-        return self.normalize(x)
-
-    def extra_repr(self) -> str:
-        return f"num_features={self.num_features}, pose_dim={self.pose_dim}"
+    forward = normalize

@@ -1,17 +1,14 @@
-"""A small synthetic dataset in the exact H3.6M text format, for tests and smoke runs.
-
-Files go to ``<root>/h3.6m/dataset/S{subject}/{action}_{1,2}.txt``: 99 comma-separated numbers
-with 7 decimals per line, LF endings, like the real archive. Only the 54 columns that are used on
-the real data (protocol §2.1) move; the other 45 are exactly 0, so the Normalizer finds D = 54
-as on H3.6M. The motion is smooth: per-action frequencies, per-subject/subaction phases, two
-harmonics and a little noise, so a model can actually learn to continue it.
-"""
+"""A small synthetic dataset in the exact H3.6M text format (99 comma-separated numbers with 7
+decimals per line, LF endings), for tests and smoke runs. Only the 54 columns used on the real
+data (protocol §2.1) move, the other 45 are exactly 0, so D = 54 as on H3.6M; the motion is
+smooth (per-action frequencies, per-sequence phases, two harmonics, a little noise), so a model
+can learn to continue it."""
 
 from __future__ import annotations
 
 import io
 import os
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,29 +19,17 @@ from src.data.files import atomic_write
 from src.data.h36m import H36MDataModule
 from src.data.layout import H36M, H36M_ACTIONS, h36m_files
 
-# The 54 used columns on H3.6M (protocol §2.1), as inclusive ranges.
-_USED_RANGES = [
-    (0, 9),
-    (12, 15),
-    (21, 24),
-    (27, 30),
-    (36, 47),
-    (51, 57),
-    (60, 62),
-    (75, 81),
-    (84, 86),
-]
-H36M_USED_COLUMNS: tuple[int, ...] = tuple(c for lo, hi in _USED_RANGES for c in range(lo, hi + 1))
+# The 54 used columns on H3.6M (protocol §2.1).
+H36M_USED_COLUMNS: tuple[int, ...] = tuple(
+    np.r_[0:10, 12:16, 21:25, 27:31, 36:48, 51:58, 60:63, 75:82, 84:87].tolist()
+)
 SYNTHETIC_ACTIONS = ("walking", "eating", "smoking")
-RAW_FPS = 50
 
 
 def synthetic_motion(
     subject: int, action: str, subaction: int, raw_frames: int, seed: int = 0
 ) -> np.ndarray:
     """(raw_frames, 99) float64 frames of one synthetic sequence (see the module docstring)."""
-    if action not in H36M_ACTIONS:
-        raise DataError(f"unknown action {action!r}; valid: {', '.join(H36M_ACTIONS)}")
     used = np.array(H36M_USED_COLUMNS)
     shape_rng = np.random.default_rng([seed, 0])  # per column, shared by all sequences
     amp = shape_rng.uniform(0.1, 0.5, used.size)
@@ -52,7 +37,7 @@ def synthetic_motion(
     seq_rng = np.random.default_rng([seed, 1, subject, H36M_ACTIONS.index(action), subaction])
     phase1, phase2 = seq_rng.uniform(0, 2 * np.pi, (2, used.size))
     freq = 0.5 + 0.2 * (H36M_ACTIONS.index(action) % 8)  # Hz
-    t = np.arange(raw_frames)[:, None] / RAW_FPS
+    t = np.arange(raw_frames)[:, None] / 50  # seconds at the raw 50 Hz
     wave = np.sin(2 * np.pi * freq * t + phase1) + 0.3 * np.sin(4 * np.pi * freq * t + phase2)
     frames = np.zeros((raw_frames, H36M.n_columns))
     frames[:, used] = offset + amp * wave + seq_rng.normal(0.0, 0.005, (raw_frames, used.size))
@@ -66,11 +51,9 @@ def write_synthetic_h36m(
     raw_frames: int = 400,
     seed: int = 0,
 ) -> list[Path]:
-    """Write the synthetic files under ``root`` (the data_dir); return their paths.
-
-    A file that already holds exactly these frames is left alone (so its parsed cache stays
-    valid); one written with other settings (``raw_frames``, ``seed``) is replaced.
-    """
+    """Write the synthetic files under ``root`` (the data_dir); return their paths. A file that
+    already holds exactly these frames is left alone (its parsed cache stays valid); one
+    written with other settings (``raw_frames``, ``seed``) is replaced."""
     if raw_frames < 2:
         raise DataError(f"raw_frames must be >= 2, got {raw_frames}")
     root = Path(root)
@@ -89,40 +72,25 @@ def write_synthetic_h36m(
 
 
 class SyntheticDataModule(H36MDataModule):
-    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic`` (written when absent).
-
-    Defaults: train subject 1, test subject 5, actions walking, eating, smoking. Every other
-    argument is passed to :class:`H36MDataModule` (archive arguments are ignored).
-    """
+    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic`` (written when absent):
+    train subject 1, test subject 5, actions walking, eating, smoking by default. Every other
+    argument is H36MDataModule's (the archive ones are never needed)."""
 
     def __init__(
         self,
         data_dir: str | os.PathLike | None,
-        actions: str | Iterable[str] = SYNTHETIC_ACTIONS,
-        train_subjects: Iterable[int] = (1,),
-        test_subject: int = 5,
         raw_frames: int = 400,
         synthetic_seed: int = 0,
         **kwargs,
     ):
-        kwargs.pop("archive", None)
-        kwargs.pop("archive_dir", None)
-        super().__init__(
-            resolve_data_dir(data_dir) / "synthetic",
-            actions=actions,
-            train_subjects=train_subjects,
-            test_subject=test_subject,
-            **kwargs,
-        )
-        self.raw_frames = raw_frames
-        self.synthetic_seed = synthetic_seed
+        kwargs = {"actions": SYNTHETIC_ACTIONS, "train_subjects": (1,), "test_subject": 5} | kwargs
+        super().__init__(resolve_data_dir(data_dir) / "synthetic", **kwargs)
+        self.raw_frames, self.synthetic_seed = raw_frames, synthetic_seed
 
     def _locate(self):
         # Always: files an earlier run wrote with another raw_frames or synthetic_seed must not
         # silently stand in for the ones these settings describe.
-        subjects = (
-            [self.test_subject] if self._eval_only else [*self.train_subjects, self.test_subject]
-        )
+        subjects = [*([] if self._eval_only else self.train_subjects), self.test_subject]
         write_synthetic_h36m(
             self.data_dir, subjects, self.actions, self.raw_frames, self.synthetic_seed
         )

@@ -1,14 +1,7 @@
-"""Start frames of training and evaluation windows: pure functions of sequence lengths.
-
-All lengths and starts are in downsampled frames (protocol §1.3). A window starting at ``s``
-covers frames [s, s + observed_len + future_len); its first ``observed_len`` frames are the
-observed past (the last one, s + 49, is the decoder seed) and the rest the future to predict.
-
-Start ranges follow the reference code (upper bound exclusive):
-- H3.6M training: [16, n - (50 + T_out))  (protocol §1.4)
-- CMU training:   [0,  n - (50 + T_out))  (protocol §1.5)
-The project's extra evaluation protocols (``random``, ``strided``) use the same ranges.
-"""
+"""Start frames of training and evaluation windows, in downsampled frames (protocol §1.3), as
+pure functions of sequence lengths. Training starts, as in the reference code, lie in
+[16, n - (50 + T_out)) on H3.6M (§1.4) and [0, n - (50 + T_out)) on CMU (§1.5); the ``random``
+and ``strided`` evaluation protocols use the same ranges."""
 
 from __future__ import annotations
 
@@ -23,19 +16,12 @@ TRAIN_START_LOW = {"h36m": 16, "cmu": 0}
 SRNN_PREFIX, SRNN_SUFFIX = 50, 100  # the SRNN rule always reserves 150 frames (§3.1)
 
 
-def start_bounds(length: int, window_len: int, low: int = 0) -> tuple[int, int]:
-    """[low, high) of valid window starts; empty (high <= low) if the sequence is too short."""
-    return low, length - window_len
-
-
 def srnn_h36m_starts(
     len_sub1: int, len_sub2: int, n: int = 8, seed: int = SRNN_SEED
 ) -> list[tuple[int, int]]:
-    """(subaction, start) of the SRNN test windows of one H3.6M action (protocol §3.1).
-
-    A fresh RandomState(seed) per call; draw i uses subaction (i % 2) + 1 and
-    randint(16, T_sub - 150). Starts do not depend on T_out.
-    """
+    """(subaction, start) of the SRNN test windows of one H3.6M action (protocol §3.1): a fresh
+    RandomState(seed) per call; draw i uses subaction (i % 2) + 1 and randint(16, T_sub - 150),
+    so the starts do not depend on T_out."""
     lengths = {1: len_sub1, 2: len_sub2}
     for sub, length in lengths.items():
         if length - SRNN_PREFIX - SRNN_SUFFIX <= 16:
@@ -44,21 +30,16 @@ def srnn_h36m_starts(
                 f"{16 + SRNN_PREFIX + SRNN_SUFFIX} (fix: use the complete test files)"
             )
     rng = np.random.RandomState(seed)
-    out = []
-    for i in range(n):
-        sub = i % 2 + 1
-        out.append((sub, int(rng.randint(16, lengths[sub] - SRNN_PREFIX - SRNN_SUFFIX))))
-    return out
+    subs = [i % 2 + 1 for i in range(n)]
+    return [(s, int(rng.randint(16, lengths[s] - SRNN_PREFIX - SRNN_SUFFIX))) for s in subs]
 
 
 def cmu_test_starts(
     length: int, observed_len: int = 50, future_len: int = 25, n: int = 8, seed: int = SRNN_SEED
 ) -> list[int]:
-    """Starts of the 8 CMU test windows of one action's test file (protocol §3.2).
-
-    A fresh RandomState(seed) per call; randint(0, n - (observed_len + future_len)), so unlike
-    H3.6M the starts depend on T_out.
-    """
+    """Starts of the 8 CMU test windows of one action's test file (protocol §3.2): a fresh
+    RandomState(seed) per call, randint(0, n - (observed_len + future_len)), so unlike H3.6M
+    the starts depend on T_out."""
     high = length - (observed_len + future_len)
     if high <= 0:
         raise DataError(
@@ -74,7 +55,7 @@ def random_starts(
 ) -> list[tuple[int, int]]:
     """``n`` (sequence index, start) pairs: sequence uniform among those long enough, start
     uniform in [low, length - window_len). A fresh RandomState(seed) per call, as in §3.1."""
-    eligible = [i for i, t in enumerate(lengths) if start_bounds(t, window_len, low)[1] > low]
+    eligible = [i for i, t in enumerate(lengths) if t - window_len > low]
     if not eligible:
         raise DataError(
             f"no sequence is long enough for a {window_len}-frame window starting at >= {low} "
@@ -94,8 +75,4 @@ def strided_starts(
     """Every (sequence index, start) with start in range(low, length - window_len, stride)."""
     if stride < 1:
         raise DataError(f"the eval stride must be >= 1, got {stride}")
-    return [
-        (i, s)
-        for i, t in enumerate(lengths)
-        for s in range(low, start_bounds(t, window_len, low)[1], stride)
-    ]
+    return [(i, s) for i, t in enumerate(lengths) for s in range(low, t - window_len, stride)]

@@ -1,13 +1,9 @@
-"""The Euler-angle error of Martinez et al. 2017 / Li et al. 2018 (protocol §4).
-
-Per test window: unnormalised exp-map frames -> Euler angles per joint triple -> zero the global
-translation and rotation (cols 0-5) -> keep the dims whose ground-truth Euler std over time is
-> 1e-4 -> per-frame L2 norm of the difference over the kept dims (no angle wrapping). The table
-value for an action is the plain mean over its windows (protocol §4.1 step 6).
-
-The dims are chosen from the ground truth, never from the prediction: choosing them from the
-prediction (the old bug of protocol §8) gives a constant prediction zero error.
-"""
+"""The Euler-angle error of Martinez et al. 2017 / Li et al. 2018 (protocol §4). Per test window:
+unnormalised exp-map frames -> Euler angles per joint triple -> zero the global translation and
+rotation (cols 0-5) -> keep the dims whose ground-truth Euler std over time is > 1e-4 -> per-frame
+L2 norm of the difference over the kept dims (no angle wrapping); an action's table value is the
+plain mean over its windows (§4.1 step 6). The dims come from the ground truth, never from the
+prediction: that (the old bug of protocol §8) gives a constant prediction zero error."""
 
 import torch
 import torchmetrics
@@ -21,13 +17,10 @@ DIM_RULES = ("future", "window")
 
 
 def horizon_frame_indices(frame_ms: float = 40, num_frames: int = 25) -> dict[int, int]:
-    """Map each horizon of HORIZONS_MS to its 0-based index into the predicted frames.
-
-    Predicted frame k lies (k + 1) * frame_ms after the last observed frame (protocol §4.3), so
-    80 ms -> 1, 160 -> 3, 320 -> 7, 400 -> 9, 560 -> 13, 1000 -> 24 at 40 ms per frame. Only
-    horizons with index < num_frames are returned. The CMU tables of Li et al. use the same
-    indices and labels (frame_ms = 40) although that data is probably at 30 Hz (protocol §1.5).
-    """
+    """Each horizon of HORIZONS_MS with its 0-based index < num_frames into the predicted frames.
+    Frame k lies (k + 1) * frame_ms after the last observed one (protocol §4.3): 80 ms -> 1,
+    160 -> 3, 320 -> 7, 400 -> 9, 560 -> 13, 1000 -> 24 at 40 ms. Li et al.'s CMU tables use the
+    same (frame_ms = 40) although that data is probably at 30 Hz (protocol §1.5)."""
     if frame_ms <= 0 or num_frames < 1:
         raise MetricInputError(
             f"frame_ms must be > 0 and num_frames >= 1, got {frame_ms} and {num_frames}"
@@ -58,11 +51,9 @@ def _check_frames(x: Tensor, name: str) -> None:
 
 
 def expmap_frames_to_euler(x: Tensor) -> Tensor:
-    """Full exp-map frames (..., F) to Euler frames (..., F) as the metric sees them.
-
-    Triples starting at column 3 are converted (protocol §4.1 step 2, as in [M]); then columns
-    0-5, the global translation and rotation, are set to 0 (step 3).
-    """
+    """Full exp-map frames (..., F) to Euler frames (..., F) as the metric sees them: triples
+    from column 3 on converted (protocol §4.1 step 2, as in [M]), columns 0-5, the global
+    translation and rotation, set to 0 (step 3)."""
     _check_frames(x, "frames")
     euler = expmap_to_euler(x[..., 3:].unflatten(-1, (-1, 3))).flatten(-2)
     return torch.cat((torch.zeros_like(x[..., :6]), euler[..., 3:]), -1)
@@ -71,13 +62,9 @@ def expmap_frames_to_euler(x: Tensor) -> Tensor:
 def selected_dims(
     gt_euler: Tensor, dim_rule: str = "future", observed_euler: Tensor | None = None
 ) -> Tensor:
-    """Bool mask (B, F) of the Euler dims the error uses in each window (protocol §4.1 step 4).
-
-    gt_euler (B, T, F) and observed_euler (B, T_obs, F) are Euler frames from
-    expmap_frames_to_euler. A dim is kept where the ground-truth population std over time is
-    > 1e-4, the std taken over the future frames ("future", [M]) or observed + future ("window",
-    [L]). Never over the prediction: that was the bug of protocol §8.
-    """
+    """Bool mask (B, F) of the Euler dims the error uses in each window (protocol §4.1 step 4):
+    those whose ground-truth population std over time is > 1e-4, over the future frames
+    gt_euler (B, T, F) ("future", [M]) or observed_euler (B, T_obs, F) + future ("window", [L])."""
     if dim_rule not in DIM_RULES:
         raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
     if dim_rule == "future":
@@ -108,15 +95,10 @@ def euler_error_per_frame(
     dim_rule: str = "future",
     gt_observed_full: Tensor | None = None,
 ) -> Tensor:
-    """Per-window, per-frame Euler error (B, T) in float64 (protocol §4.1 steps 1-5).
-
-    pred_full, gt_full: unnormalised exp-map (B, T, F). Dims are kept where the ground-truth
-    Euler std (population, over time, per window) exceeds 1e-4, computed over
-    - "future": the T future frames ([M] after its PR #17 fix; the default), or
-    - "window": observed + future frames ([L]); needs gt_observed_full (B, T_obs, F).
-    The error of a frame is the L2 norm of the Euler difference over the kept dims, without
-    wrapping angle differences (as the reference).
-    """
+    """Per-window, per-frame Euler error (B, T) in float64 (protocol §4.1 steps 1-5) of
+    unnormalised exp-map pred_full and gt_full (B, T, F): the L2 norm of the Euler difference,
+    angles unwrapped as in the reference, over the dims selected_dims keeps by dim_rule,
+    "future" ([M] after its PR #17 fix) or "window" ([L], needs gt_observed_full (B, T_obs, F))."""
     _check_frames(pred_full, "pred_full")
     _check_frames(gt_full, "gt_full")
     if pred_full.dim() != 3 or pred_full.shape != gt_full.shape:
@@ -124,8 +106,6 @@ def euler_error_per_frame(
             f"pred_full and gt_full must both be (B, T, F); got {tuple(pred_full.shape)} and "
             f"{tuple(gt_full.shape)}"
         )
-    if dim_rule not in DIM_RULES:
-        raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
     observed = None
     if dim_rule == "window" and gt_observed_full is not None:
         _check_frames(gt_observed_full, "gt_observed_full")
@@ -138,40 +118,57 @@ def euler_error_per_frame(
     return sq.sum(-1).sqrt()
 
 
-def check_action_indices(action: Tensor, batch: int, num_actions: int) -> Tensor:
-    """Validate an action-index tensor (B,) against the metric's num_actions; return it as long."""
-    if not isinstance(action, Tensor) or action.dtype not in (torch.int32, torch.int64):
-        raise MetricInputError("action must be an integer tensor (B,) of action indices")
-    if action.shape != (batch,):
-        raise MetricInputError(f"action must have shape ({batch},), got {tuple(action.shape)}")
-    if batch and (action.min() < 0 or action.max() >= num_actions):
-        raise MetricInputError(
-            f"action indices must lie in [0, {num_actions}), got {action.min()}..{action.max()}"
-        )
-    return action.long()
-
-
-class EulerAngleError(torchmetrics.Metric):
-    """Mean Euler error per action and future frame, (A, T), over all windows seen.
-
-    compute() returns NaN for actions without any window; callers show them as absent. States are
-    sums, so the value is the same however windows are split into batches or processes.
-    """
+class PerActionMean(torchmetrics.Metric):
+    """Mean of a per-window, per-frame error (B, T) per action and frame, (A, T), over all windows
+    seen; NaN for actions without any, which callers show as absent. The states are sums, so the
+    value is the same however the windows are split into batches or processes."""
 
     full_state_update = False
     is_differentiable = False
     higher_is_better = False
 
-    def __init__(self, num_actions: int, num_frames: int, dim_rule: str = "future", **kwargs):
+    def __init__(self, num_actions: int, num_frames: int, **kwargs):
         super().__init__(**kwargs)
-        if dim_rule not in DIM_RULES:
-            raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
-        self.num_actions, self.num_frames, self.dim_rule = num_actions, num_frames, dim_rule
+        self.num_actions, self.num_frames = num_actions, num_frames
         zeros = torch.zeros(num_actions, num_frames, dtype=torch.float64)
         self.add_state("error_sum", default=zeros, dist_reduce_fx="sum")
-        self.add_state(
-            "count", default=torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum"
-        )
+        self.add_state("count", torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum")
+
+    def add(self, err: Tensor, action: Tensor) -> None:
+        """Add the errors (B, T) of windows of the actions ``action`` (B,) long."""
+        if err.shape[1] != self.num_frames:
+            raise MetricInputError(
+                f"expected (B, {self.num_frames}, F) predictions, got {err.shape[1]} frames; "
+                "num_frames of the metric must equal the number of predicted frames"
+            )
+        if not isinstance(action, Tensor) or action.dtype not in (torch.int32, torch.int64):
+            raise MetricInputError("action must be an integer tensor (B,) of action indices")
+        if action.shape != err.shape[:1]:
+            raise MetricInputError(
+                f"action must have shape ({len(err)},), got {tuple(action.shape)}"
+            )
+        if len(action) and (action.min() < 0 or action.max() >= self.num_actions):
+            raise MetricInputError(
+                f"action indices must lie in [0, {self.num_actions}), got "
+                f"{action.min()}..{action.max()}"
+            )
+        action = action.long().to(self.count.device)
+        self.error_sum.index_add_(0, action, err.to(self.error_sum.device))
+        self.count += torch.bincount(action, minlength=self.num_actions)
+
+    def compute(self) -> Tensor:
+        mean = self.error_sum / self.count.clamp_min(1).unsqueeze(1)
+        return torch.where(self.count.unsqueeze(1) > 0, mean, torch.nan)
+
+
+class EulerAngleError(PerActionMean):
+    """Mean Euler error (protocol §4.1) per action and future frame, (A, T)."""
+
+    def __init__(self, num_actions: int, num_frames: int, dim_rule: str = "future", **kwargs):
+        super().__init__(num_actions, num_frames, **kwargs)
+        if dim_rule not in DIM_RULES:
+            raise MetricInputError(f"dim_rule must be one of {DIM_RULES}, got {dim_rule!r}")
+        self.dim_rule = dim_rule
 
     def update(
         self,
@@ -180,26 +177,4 @@ class EulerAngleError(torchmetrics.Metric):
         action: Tensor,
         gt_observed_full: Tensor | None = None,
     ) -> None:
-        if (
-            not isinstance(pred_full, Tensor)
-            or pred_full.dim() != 3
-            or pred_full.shape[1] != self.num_frames
-        ):
-            raise MetricInputError(
-                f"expected (B, {self.num_frames}, F) predictions, got {tuple(pred_full.shape)}; "
-                "num_frames of the metric must equal the number of predicted frames"
-            )
-        err = euler_error_per_frame(pred_full, gt_full, self.dim_rule, gt_observed_full)
-        device = self.error_sum.device
-        action = check_action_indices(action, err.shape[0], self.num_actions).to(device)
-        self.error_sum.index_add_(0, action, err.to(device))
-        self.count += torch.bincount(action, minlength=self.num_actions)
-
-    def compute(self) -> Tensor:
-        return mean_or_nan(self.error_sum, self.count)
-
-
-def mean_or_nan(error_sum: Tensor, count: Tensor) -> Tensor:
-    """error_sum (A, T) / count (A,), NaN where count is 0."""
-    mean = error_sum / count.clamp_min(1).unsqueeze(1).to(error_sum.dtype)
-    return torch.where(count.unsqueeze(1) > 0, mean, torch.full_like(mean, float("nan")))
+        self.add(euler_error_per_frame(pred_full, gt_full, self.dim_rule, gt_observed_full), action)

@@ -1,14 +1,9 @@
-"""Forward kinematics: exp-map pose vectors -> 3D joint positions, for MPJPE and display.
-
-The kinematic trees (skeletons/h36m.json, skeletons/cmu.json) are the ones of the reference
-forward-kinematics code of the two papers, copied from the shared data folder (see its
-README, section Skeletons). Conventions of that code, kept here:
-
-- row vectors: a point v is rotated as v @ R, with R the Rodrigues matrix of protocol §4.2;
-- a joint's position = its offset rotated by the parent's accumulated rotation + the parent's
-  position; its accumulated rotation = its own rotation @ the parent's accumulated rotation;
-- positions come out with y up; the reference swaps y and z only for display (yz_swap).
-"""
+"""Forward kinematics: exp-map pose vectors -> 3D joint positions, for MPJPE and display. The
+kinematic trees (skeletons/*.json) are those of the two papers' reference code, from the shared
+data folder (its README, section Skeletons), with its conventions: row vectors (a point v is
+rotated as v @ R, R the Rodrigues matrix of protocol §4.2); a joint's position is its offset
+rotated by the parent's accumulated rotation plus the parent's position, its accumulated rotation
+its own @ the parent's; y is up (the reference swaps y and z only for display, yz_swap)."""
 
 import json
 from dataclasses import dataclass
@@ -24,12 +19,9 @@ SKELETONS = ("h36m", "cmu")
 
 @dataclass(frozen=True, eq=False)
 class Skeleton:
-    """A kinematic tree. Joints are in topological order (parents[j] < j), joint 0 is the root.
-
-    offsets (J, 3) float64 are in the skeleton's units (mm for H3.6M; CMU offsets are the
-    reference's, already scaled by 70). expmap_columns (J, 3) are the pose-vector columns holding
-    each joint's exp-map (joint 0 = global orientation, columns 3-5).
-    """
+    """A kinematic tree, joints in topological order (parents[j] < j), joint 0 the root; offsets
+    (J, 3) float64 in the skeleton's units (mm on H3.6M; CMU's the reference's, scaled by 70);
+    expmap_columns (J, 3) each joint's exp-map columns (joint 0: the global rotation, 3-5)."""
 
     name: str
     parents: tuple[int, ...]
@@ -77,17 +69,12 @@ class Skeleton:
 def forward_kinematics(x_full: Tensor, skeleton: Skeleton, zero_global: bool = True) -> Tensor:
     """3D joint positions (..., J, 3) of unnormalised exp-map pose vectors (..., F).
 
-    zero_global=True (the metric convention, as in SRNN's error, protocol §4.1 step 3): the root
-    has no translation and no rotation, so poses are compared in the body frame. With False, the
-    root is translated by columns 0-2 and rotated by columns 3-5 of the same frame; note that the
-    H3.6M archive stores those per frame as increments (protocol §1.1), so a trajectory needs
-    them integrated first.
-
-    The reference also adds the columns listed as `position_columns_1based` to each offset. For
-    the joints these are the joint's own exp-map parameters (radians added to millimetres) and for
-    the root the global rotation, so the term has no geometric meaning and no metric uses it; it
-    is left out here.
-    """
+    zero_global=True (the metric convention, SRNN's, protocol §4.1 step 3): the root has no
+    translation and rotation, poses are compared in the body frame. With False, columns 0-2
+    translate and 3-5 rotate the root (H3.6M stores them as per-frame increments, §1.1: integrate
+    them first for a trajectory). The reference also adds its `position_columns_1based` to each
+    offset: a joint's own exp-map (radians added to millimetres), the root's global rotation;
+    with no geometric meaning and in no metric, it is left out."""
     if not isinstance(x_full, Tensor) or not x_full.is_floating_point():
         raise MetricInputError("x_full must be a floating torch.Tensor of unnormalised exp-maps")
     F = skeleton.num_columns
@@ -116,15 +103,11 @@ def forward_kinematics(x_full: Tensor, skeleton: Skeleton, zero_global: bool = T
 
 
 def moving_joints(skeleton: Skeleton, used_columns: Tensor) -> Tensor:
-    """Indices of the joints whose position the metric can see move, sorted.
-
-    A joint is kept when (a) its offset is non-zero (zero offsets duplicate the parent's
-    position), (b) it has a proper ancestor other than the root whose exp-map columns include a
-    used dimension (the root's rotation is zeroed by the metric, and ignored columns come back as
-    the constant training mean, protocol §2.2), and (c) no earlier joint has the same parent and
-    the same offset (such joints always sit at the same point, e.g. the H3.6M shoulders' bases).
-    On H3.6M with the 54 used columns of protocol §2.1 this gives the usual 22 joints.
-    """
+    """Indices of the joints whose position the metric can see move, sorted: those (a) with a
+    non-zero offset (else they duplicate the parent), (b) with an ancestor other than the root
+    that has a used exp-map column (the metric zeroes the root's rotation, and ignored columns
+    come back as the constant training mean, protocol §2.2) and (c) not at the same parent and
+    offset as an earlier joint (e.g. the H3.6M shoulders' bases). The usual 22 on H3.6M (§2.1)."""
     used = torch.as_tensor(used_columns)
     if used.dtype != torch.bool or used.shape != (skeleton.num_columns,):
         raise MetricInputError(

@@ -7,10 +7,9 @@ forward kinematics with the global translation and rotation zeroed, in the skele
 """
 
 import torch
-import torchmetrics
 from torch import Tensor
 
-from src.metrics.euler_error import check_action_indices, mean_or_nan
+from src.metrics.euler_error import PerActionMean
 from src.metrics.kinematics import Skeleton, forward_kinematics
 from src.metrics.rotations import MetricInputError
 
@@ -32,20 +31,14 @@ def mpjpe_per_frame(
     return torch.linalg.vector_norm(pred[..., joints, :] - gt[..., joints, :], dim=-1).mean(-1)
 
 
-class MPJPE(torchmetrics.Metric):
-    """Mean MPJPE per action and future frame, (A, T); NaN for actions without windows.
-
-    joints: the joints to average over, e.g. moving_joints(skeleton, used_columns) (22 on H3.6M).
-    """
-
-    full_state_update = False
-    is_differentiable = False
-    higher_is_better = False
+class MPJPE(PerActionMean):
+    """Mean MPJPE per action and future frame, (A, T), over ``joints``, e.g.
+    moving_joints(skeleton, used_columns) (22 on H3.6M); NaN for actions without windows."""
 
     def __init__(
         self, skeleton: Skeleton, joints: Tensor, num_actions: int, num_frames: int, **kwargs
     ):
-        super().__init__(**kwargs)
+        super().__init__(num_actions, num_frames, **kwargs)
         joints = torch.as_tensor(joints, dtype=torch.long)
         if joints.dim() != 1 or joints.numel() == 0:
             raise MetricInputError("joints must be a non-empty 1-D tensor of joint indices")
@@ -55,28 +48,6 @@ class MPJPE(torchmetrics.Metric):
                 f"{skeleton.name!r}, got {joints.tolist()}"
             )
         self.skeleton, self.joints = skeleton, joints
-        self.num_actions, self.num_frames = num_actions, num_frames
-        zeros = torch.zeros(num_actions, num_frames, dtype=torch.float64)
-        self.add_state("error_sum", default=zeros, dist_reduce_fx="sum")
-        self.add_state(
-            "count", default=torch.zeros(num_actions, dtype=torch.long), dist_reduce_fx="sum"
-        )
 
     def update(self, pred_full: Tensor, gt_full: Tensor, action: Tensor) -> None:
-        if (
-            not isinstance(pred_full, Tensor)
-            or pred_full.dim() != 3
-            or pred_full.shape[1] != self.num_frames
-        ):
-            raise MetricInputError(
-                f"expected (B, {self.num_frames}, F) predictions, got {tuple(pred_full.shape)}; "
-                "num_frames of the metric must equal the number of predicted frames"
-            )
-        err = mpjpe_per_frame(pred_full, gt_full, self.skeleton, self.joints)
-        device = self.error_sum.device
-        action = check_action_indices(action, err.shape[0], self.num_actions).to(device)
-        self.error_sum.index_add_(0, action, err.to(device))
-        self.count += torch.bincount(action, minlength=self.num_actions)
-
-    def compute(self) -> Tensor:
-        return mean_or_nan(self.error_sum, self.count)
+        self.add(mpjpe_per_frame(pred_full, gt_full, self.skeleton, self.joints), action)

@@ -1,21 +1,11 @@
-"""Rotation conversions used by the metrics: exp-map <-> rotation matrix <-> SRNN Euler angles.
-
-Every function takes a torch tensor with any leading dimensions, works in float32 or float64,
-keeps the input's dtype and device, and is differentiable wherever the map is smooth.
-
-Why not scipy.spatial.transform.Rotation? Two reasons:
-
-- The error metric of both reference implementations is defined by a port of SRNN's
-  `RotMat2Euler.m` (protocol §4.2), including its branch for R[0,2] exactly +-1, which no
-  library reproduces. The published numbers depend on this exact convention.
-- scipy works on numpy arrays only; we need batched torch tensors on any device, with
-  gradients (the metrics run inside the Lightning validation loop).
-
-The tests use scipy as an independent oracle and it agrees: `Rotation.from_rotvec(r).as_matrix()`
-equals `expmap_to_rotmat(r)` to ~1e-7 (the size of the reference's eps, below), and
-`rotmat_to_euler(R)` equals `-Rotation.from_matrix(R).as_euler("XYZ")` away from gimbal lock to
-~1e-10 in float64.
-"""
+"""Rotation conversions of the metrics: exp-map <-> rotation matrix <-> SRNN Euler angles, on torch
+tensors of any leading shape, in the input's dtype and device, differentiable where the map is
+smooth. Not scipy's Rotation: the published numbers depend on the exact convention of SRNN's
+`RotMat2Euler.m` (protocol §4.2), down to its branch for R[0,2] exactly +-1, which no library
+reproduces, and the metrics need batched tensors on any device. The tests use scipy as an oracle:
+`Rotation.from_rotvec(r).as_matrix()` equals `expmap_to_rotmat(r)` to ~1e-7 (the reference's eps,
+below), `-Rotation.from_matrix(R).as_euler("XYZ")` equals `rotmat_to_euler(R)` away from gimbal
+lock to ~1e-10 in float64."""
 
 import math
 
@@ -55,12 +45,9 @@ def _skew(k: Tensor) -> Tensor:
 
 
 def expmap_to_rotmat(r: Tensor) -> Tensor:
-    """Exp-map (axis * angle, (..., 3)) to rotation matrix (..., 3, 3) by Rodrigues' formula.
-
-    Exactly as the reference (protocol §4.2): theta = |r|, k = r / (theta + eps_float32),
-    R = I + sin(theta) [k]x + (1 - cos(theta)) [k]x^2. This is the standard active rotation
-    (R @ v rotates v by theta about k), the same matrix as scipy's `from_rotvec`.
-    """
+    """Exp-map (axis * angle, (..., 3)) to rotation matrix (..., 3, 3) by Rodrigues' formula,
+    exactly as the reference (protocol §4.2): theta = |r|, k = r / (theta + eps_float32),
+    R = I + sin(theta) [k]x + (1 - cos(theta)) [k]x^2, the active rotation (R @ v rotates v)."""
     _check_last_dims(r, (3,), "expmap")
     theta = torch.linalg.vector_norm(r, dim=-1, keepdim=True)
     k = _skew(r / (theta + EPS_FLOAT32))
@@ -70,20 +57,15 @@ def expmap_to_rotmat(r: Tensor) -> Tensor:
 
 
 def rotmat_to_euler(R: Tensor) -> Tensor:
-    """Rotation matrix (..., 3, 3) to SRNN Euler angles (..., 3) in the order (E1, E2, E3).
+    """Rotation matrix (..., 3, 3) to SRNN Euler angles (E1, E2, E3), port of SRNN's RotMat2Euler
+    (protocol §4.2): E2 = -asin(R[0,2]), E1 = atan2(R[1,2], R[2,2]), E3 = atan2(R[0,1], R[0,0]);
+    R = Rx(-E1) Ry(-E2) Rz(-E3). The reference divides both atan2 arguments by cos(E2) >= 0,
+    which cancels: left out, as it only adds rounding and blows up gradients near |R[0,2]| = 1.
 
-    Port of SRNN's RotMat2Euler (protocol §4.2): E2 = -asin(R[0,2]),
-    E1 = atan2(R[1,2], R[2,2]), E3 = atan2(R[0,1], R[0,0]); equivalently
-    R = Rx(-E1) Ry(-E2) Rz(-E3). The reference divides both atan2 arguments by cos(E2); that
-    factor is >= 0 for E2 in [-pi/2, pi/2] and cancels inside atan2, so we leave it out (it only
-    adds rounding, and near |R[0,2]| = 1 it would make gradients blow up).
-
-    Gimbal branch, taken only when R[0,2] is exactly +-1 as in the reference: E3 = 0,
-    d = atan2(R[0,1], R[0,2]); R[0,2] = -1 gives (E1, E2) = (d, pi/2), +1 gives (d, -pi/2).
-    The reference's d reads R[0,1], which is 0 in that case, so this branch does not recover
-    the rotation about the locked axis; we reproduce it anyway because the published numbers
-    were computed with it (in practice it is never reached on real data).
-    """
+    Gimbal branch, only where R[0,2] is exactly +-1 as in the reference: E3 = 0,
+    d = atan2(R[0,1], R[0,2]); R[0,2] = -1 gives (E1, E2) = (d, pi/2), +1 gives (d, -pi/2). Its
+    d reads R[0,1] = 0, so the rotation about the locked axis is lost; reproduced all the same,
+    as the published numbers were computed with it (real data never reaches it)."""
     _check_last_dims(R, (3, 3), "rotation matrix")
     r02, r01, r00 = R[..., 0, 2], R[..., 0, 1], R[..., 0, 0]
     r12, r22 = R[..., 1, 2], R[..., 2, 2]
@@ -125,10 +107,8 @@ def _axis_rotation(angle: Tensor, axis: int) -> Tensor:
 
 
 def euler_to_rotmat(e: Tensor) -> Tensor:
-    """SRNN Euler angles (..., 3) to rotation matrix: R = Rx(-E1) Ry(-E2) Rz(-E3) (protocol §4.2).
-
-    Inverse of rotmat_to_euler for E1, E3 in (-pi, pi] and E2 in (-pi/2, pi/2).
-    """
+    """SRNN Euler angles (..., 3) to rotation matrix R = Rx(-E1) Ry(-E2) Rz(-E3) (protocol §4.2),
+    the inverse of rotmat_to_euler for E1, E3 in (-pi, pi] and E2 in (-pi/2, pi/2)."""
     _check_last_dims(e, (3,), "euler")
     rx = _axis_rotation(-e[..., 0], 0)
     ry = _axis_rotation(-e[..., 1], 1)

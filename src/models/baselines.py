@@ -14,8 +14,6 @@ error of our prediction equals the error of [M]'s Euler-space mean.
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import torch
 from torch import Tensor, nn
 
@@ -26,14 +24,6 @@ from src.metrics.rotations import (
     rotmat_to_expmap,
 )
 from src.models.conv_s2s import check_forward_inputs
-
-
-class NormalizerLike(Protocol):
-    """What the running average needs from src.data.normalization.Normalizer."""
-
-    def normalize(self, x: Tensor) -> Tensor: ...  # (..., F) -> (..., D)
-
-    def unnormalize(self, z: Tensor) -> Tensor: ...  # (..., D) -> (..., F)
 
 
 class ZeroVelocity(nn.Module):
@@ -69,13 +59,13 @@ class RunningAverage(nn.Module):
         pose_dim: D, used dimensions.
         num_actions: unused, for the common constructor contract.
         k: number of observed frames averaged (2 and 4 in Martinez Table 1).
-        normalizer: object with normalize (..., F) -> (..., D) and unnormalize (..., D) ->
-            (..., F); F - 3 must be a multiple of 3.
+        normalizer: the datamodule's Normalizer, or any object with normalize (..., F) ->
+            (..., D) and unnormalize (..., D) -> (..., F); F - 3 must be a multiple of 3.
     """
 
     trainable = False
 
-    def __init__(self, pose_dim: int, num_actions: int, k: int, normalizer: NormalizerLike):
+    def __init__(self, pose_dim: int, num_actions: int, k: int, normalizer: nn.Module):
         super().__init__()
         if k < 1:
             raise ValueError(f"k={k} must be >= 1 (number of observed frames to average)")
