@@ -69,6 +69,7 @@ def train(cfg: DictConfig) -> float:
             f"the run folder {out_dir} already holds another run; nothing was overwritten. "
             "Start the run again (it gets a new timestamped folder) or set hydra.run.dir."
         )
+    out_dir.mkdir(parents=True, exist_ok=True)  # train(cfg) called from Python: no Hydra claim
     L.seed_everything(cfg.seed, workers=True)
 
     dm = build_datamodule(cfg.data)
