@@ -1,5 +1,6 @@
 """Repository contracts: CI runs the README's test command, and no data enters git."""
 
+import ast
 import re
 import subprocess
 
@@ -60,3 +61,62 @@ def test_pages_cite_no_issue_numbers_and_every_link_resolves():
         for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text):
             if not re.match(r"https?://", target):
                 assert (page.parent / target).exists(), f"{page.name} links to {target}"
+
+
+# ------------------------------------------------------------------------------- code layout
+# Lower to higher; a module imports only from its own layer and those below it.
+LAYERS = [
+    ("src.data",),
+    ("src.models", "src.metrics", "src.plots"),
+    ("src.lit",),
+    ("src.reporting",),
+]
+
+
+def _imports() -> dict[str, set[str]]:
+    """Each module of src and the src modules it imports (anywhere in it, lazily too)."""
+    files = {
+        ".".join(p.relative_to(ROOT).with_suffix("").parts): p for p in ROOT.glob("src/**/*.py")
+    }
+    files = {m.removesuffix(".__init__"): p for m, p in files.items()}
+    graph = {}
+    for module, path in files.items():
+        found = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module, *(f"{node.module}.{a.name}" for a in node.names)]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            found |= {n for n in names if n in files and n != module}
+        graph[module] = found
+    return graph
+
+
+def _layer(module: str) -> int:
+    for i, prefixes in enumerate(LAYERS):
+        if any(module == p or module.startswith(p + ".") for p in prefixes):
+            return i
+    return len(LAYERS)  # the entry points and what only they use
+
+
+def test_no_import_circle_and_no_import_from_a_lower_layer_to_a_higher_one():
+    graph = _imports()
+    upward = [(m, d) for m, deps in graph.items() for d in deps if _layer(d) > _layer(m)]
+    assert not upward, f"a lower layer imports a higher one: {upward}"
+    # A package's __init__ re-exporting its own modules is not a circle.
+    graph = {m: {d for d in deps if not m.startswith(d + ".")} for m, deps in graph.items()}
+    done, path = set(), []
+
+    def visit(module):
+        assert module not in path, f"import circle: {' -> '.join(path[path.index(module) :])}"
+        if module in done:
+            return
+        path.append(module)
+        for dep in graph[module]:
+            visit(dep)
+        path.pop()
+        done.add(module)
+
+    for module in graph:
+        visit(module)

@@ -5,10 +5,16 @@ from __future__ import annotations
 import os
 from collections.abc import Iterable
 
-from src.data import layout
 from src.data.base import MotionDataModule
 from src.data.errors import DataError
-from src.data.layout import FileEntry, h36m_files, parse_subjects
+from src.data.layout import (
+    H36M,
+    H36M_TEST_SUBJECT,
+    H36M_TRAIN_SUBJECTS,
+    FileEntry,
+    h36m_files,
+    parse_subjects,
+)
 from src.data.windows import SRNN_PREFIX, SRNN_SUFFIX, srnn_h36m_starts
 
 
@@ -20,14 +26,14 @@ class H36MDataModule(MotionDataModule):
     MotionDataModule's.
     """
 
-    spec, dataset_name = layout.H36M, "h36m"
+    spec, dataset_name = H36M, "h36m"
     conv_padding = "same"
 
     def __init__(
         self,
         data_dir: str | os.PathLike | None = None,
-        train_subjects: Iterable[int] = layout.H36M_TRAIN_SUBJECTS,
-        test_subject: int = layout.H36M_TEST_SUBJECT,
+        train_subjects: Iterable[int] = H36M_TRAIN_SUBJECTS,
+        test_subject: int = H36M_TEST_SUBJECT,
         **kwargs,
     ):
         super().__init__(data_dir, **kwargs)
