@@ -66,8 +66,7 @@ def test_misspelt_key_is_rejected(tmp_path):
     ("override", "message"),
     [
         ("sampling.eta=1.5", r"sampling.eta=1.5 is outside \[0, 1\]"),
-        # torch.optim's own refusal, from the optimiser built before the run starts
-        ("model.optimizer.lr=-0.1", r"^model.optimizer: Invalid learning rate: -0.1$"),
+        ("model.optimizer.lr=-0.1", r"^model.optimizer.lr=-0.1 must be > 0"),
         ("model.net.C=60", "model.net.C=60 must be between 1 and data.observed_len=50"),
         ("iterations=0", r"^iterations=0 must be >= 1\.$"),
         ("sampling=linear", r"sampling.steps=0 must be a positive number"),  # iterations=0 too
