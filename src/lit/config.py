@@ -1,10 +1,9 @@
 """The types of the entry points' configs, each declared once, and the checks of a composed config.
 
-A key of a node that Hydra instantiates (`_target_`: the trainer, the data module, the networks,
-the optimisers, the eta schedule) is typed by the constructor it configures: hydra-zen's `builds`
-turns the signature into a structured config. Every other key is typed by the dataclasses below.
-OmegaConf checks a config against both, before anything runs. What no type says is checked here
-by name: the ranges of the keys no constructor reads (`within`), and a few combinations.
+A key of a node Hydra instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's
+`builds`); every other key by the dataclasses below. OmegaConf checks a config against both before
+anything runs; the ranges of keys no constructor reads (`within`) and a few combinations are
+checked here.
 """
 
 import dataclasses
@@ -147,8 +146,8 @@ BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 class _Builds(BuildsFn):
-    """hydra-zen's `builds`, reading `int | None` as it reads Optional[int], and a union without
-    the alternatives a config cannot hold (`float | Tensor` is a float)."""
+    """hydra-zen's `builds`, reading `int | None` as Optional[int], and a union without what a
+    config cannot hold (`float | Tensor` is a float)."""
 
     @classmethod
     def _sanitized_type(cls, type_, **kwargs):
@@ -161,36 +160,29 @@ class _Builds(BuildsFn):
 
 @functools.cache
 def constructor_schema(target: str, partial: bool = False) -> type:
-    """The structured config of the class `target`: its constructor's arguments, with their
-    types; through **kwargs, also those of the base class it passes them to. `partial`: for a
-    node with `_partial_`, whose missing arguments come later."""
+    """The structured config of the constructor of `target` (through **kwargs, with its base
+    class's arguments). `partial`: a node with `_partial_`, whose missing arguments come later."""
     cls = hydra.utils.get_class(target)
-    params = inspect.signature(cls).parameters.values()
-    base = cls.__base__
-    if any(p.kind is p.VAR_KEYWORD for p in params) and base not in (None, object):
-        bases = (constructor_schema(f"{base.__module__}.{base.__qualname__}"),)
-    else:
-        bases = ()
+    base, params = cls.__base__, inspect.signature(cls).parameters.values()
+    inherits = base not in (None, object) and any(p.kind is p.VAR_KEYWORD for p in params)
+    bases = (constructor_schema(f"{base.__module__}.{base.__qualname__}"),) if inherits else ()
     return _Builds.builds(
         cls, populate_full_signature=True, zen_partial=partial, builds_bases=bases
     )
 
 
-# ------------------------------------------------------------------------------ the checks
 def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
-    """check_types, then the combinations that cannot work. `resuming`: a resume, which keeps
-    its run's val_every."""
+    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
     check_types(cfg, entry)
     _check_combinations(cfg, entry, resuming)
 
 
 def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
-    nothing reads. `entry`: train, eval, visualize, export_windows."""
+    nothing reads. `entry`: a key of SCHEMAS."""
     plain, raw = _resolved(cfg), OmegaConf.to_container(cfg, resolve=False)
     _check_node(plain, SCHEMAS[entry], "")
-    # The values the user wrote first, copies (${model.net.kernel}) after: a wrong value is
-    # named where it was set.
+    # Values as written first, copies (${model.net.kernel}) after: named where they were set.
     for copies in (False, True):
         for path, node in _targets(plain, ""):
             try:
@@ -239,6 +231,13 @@ def _reworded(err: OmegaConfBaseException, path: str) -> str:
     return f"{key}={err.value!r} must be {words.get(kind, 'of another type')}."
 
 
+# What a value written for a node of each type must be: its Python types, and in words.
+_WRITTEN = {BooleanNode: ((bool,), ["true", "false"]), IntegerNode: ((int,), ["a whole number"]),
+            FloatNode: ((int, float), ["a number"]), StringNode: ((object,), ["a string"]),
+            ListConfig: ((object,), ["a list"]),
+            DictConfig: ((object,), ["a mapping"])}  # fmt: skip
+
+
 def _words(node: Any) -> str:
     """What a value of `node` is, in words: "a whole number or null", "true or false"."""
     if isinstance(node, AnyNode):  # untyped, and holding a boolean word
@@ -246,17 +245,15 @@ def _words(node: Any) -> str:
     if isinstance(node, EnumNode):
         items = [m.name for m in node._metadata.ref_type]
     else:
-        items = {BooleanNode: ["true", "false"], IntegerNode: ["a whole number"],
-                 FloatNode: ["a number"], StringNode: ["a string"], ListConfig: ["a list"],
-                 DictConfig: ["a mapping"]}.get(type(node), ["a value"])  # fmt: skip
+        items = list(_WRITTEN.get(type(node), (None, ["a value"]))[1])
     items += ["null"] if node._is_optional() else []
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " or " + items[-1]
 
 
 def _check_as_written(plain: Any, typed: Any, path: str) -> None:
-    """OmegaConf converts 'no' to false and 1 to true as it checks, but the code reads the
-    values as written: each must already have its type (a whole number stands for a number),
-    and no untyped value may be a word YAML takes for a boolean."""
+    """OmegaConf converts 'no' to false and 1 to true as it checks, but the code reads values as
+    written: each must have its type already (a whole number stands for a number), and no
+    untyped value may be a word YAML takes for a boolean."""
     if isinstance(plain, dict) and isinstance(typed, DictConfig):
         for key, value in plain.items():
             if not (isinstance(value, dict) and "_target_" in value):  # checked on its own
@@ -273,15 +270,10 @@ def _check_as_written(plain: Any, typed: Any, path: str) -> None:
 
 
 def _as_written(value: Any, node: Any) -> bool:
-    if isinstance(node, BooleanNode):
-        return isinstance(value, bool)
-    if isinstance(node, (IntegerNode, FloatNode)) and isinstance(value, bool):
-        return False
-    if isinstance(node, IntegerNode):
-        return isinstance(value, int)
-    if isinstance(node, FloatNode):
-        return isinstance(value, (int, float))
-    return not (isinstance(node, AnyNode) and str(value).lower() in BOOLEAN_WORDS)
+    if isinstance(node, AnyNode):
+        return str(value).lower() not in BOOLEAN_WORDS
+    kinds = _WRITTEN.get(type(node), ((object,),))[0]
+    return isinstance(value, kinds) and not (isinstance(value, bool) and int in kinds)
 
 
 def _check_ranges(plain: dict, schema: type, path: str) -> None:
@@ -301,8 +293,8 @@ def _check_ranges(plain: dict, schema: type, path: str) -> None:
 
 
 def _resolved(node: DictConfig) -> dict:
-    """`node` as plain values, interpolations resolved; Hydra's own node and the keys that point
-    at state not set up yet (the run folder) are left out: they are not the user's text."""
+    """`node` as plain values, resolved, without Hydra's node and the keys that point at state
+    not set up yet (the run folder): they are not the user's text."""
     out = {}
     for key in node:
         if key == "hydra":
@@ -326,7 +318,6 @@ def _targets(tree: dict, path: str):
             yield from _targets(value, here)
 
 
-# ------------------------------------------------------------------ what no type can say
 def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
     check_accelerator(cfg)
     if entry != "train":
@@ -358,9 +349,8 @@ def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
 
 
 def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
-    """Training runs whole validation periods: `iterations` must be a multiple of `val_every`,
-    or the run would silently train more (or fewer) iterations than asked. A resume keeps its
-    run's val_every: only the lengths are suggested."""
+    """`iterations` must be a multiple of `val_every` (training runs whole validation periods),
+    or the run would train another length than asked. A resume keeps its val_every."""
     iterations, every = int(cfg.iterations), int(cfg.val_every)
     if iterations % every == 0:
         return
@@ -375,8 +365,8 @@ def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
 
 
 def check_accelerator(cfg: DictConfig) -> None:
-    """A GPU asked for where torch finds none: Lightning's own error ("No supported gpu backend
-    found!") comes as a traceback, after the data has loaded."""
+    """A GPU asked for where torch finds none (Lightning says so in a traceback, after the data
+    has loaded)."""
     from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
 
     accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
