@@ -19,12 +19,8 @@ import sys
 import warnings
 
 import hydra
-from hydra.errors import (
-    ConfigCompositionException,
-    MissingConfigException,
-    OverrideParseException,
-    SearchPathException,
-)
+from hydra.errors import ConfigCompositionException as Composition
+from hydra.errors import MissingConfigException, OverrideParseException, SearchPathException
 from omegaconf import DictConfig, OmegaConf
 
 from src.lit.config import constructor_schema
@@ -32,7 +28,7 @@ from src.lit.factory import PROJECT_ROOT
 from src.lit.run_folders import USER_ERRORS, refuse
 
 CONF_DIR = PROJECT_ROOT / "conf"
-HYDRA_USER_ERRORS = (ConfigCompositionException, OverrideParseException, SearchPathException)
+HYDRA_USER_ERRORS = (Composition, OverrideParseException, SearchPathException)
 
 
 def group_options(group: str) -> str:
@@ -45,7 +41,7 @@ if not OmegaConf.has_resolver("options"):
 
 
 def friendly_errors(fn):
-    """Print the project's own errors as one message and exit with status 2."""
+    """The project's errors as one line, exit status 2."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import signal
@@ -61,10 +62,8 @@ class LastCheckpoint(Checkpoint):
     # Installed inside fit (after Lightning's SIGTERM connector), restored at teardown.
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         for signum in (signal.SIGINT, signal.SIGTERM):
-            try:
+            with contextlib.suppress(ValueError):  # not the main thread (a notebook's worker)
                 self._previous[signum] = signal.signal(signum, self._on_signal)
-            except ValueError:  # not the main thread (e.g. a notebook's worker): no handler
-                pass
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         for signum, handler in self._previous.items():
@@ -75,12 +74,10 @@ class LastCheckpoint(Checkpoint):
         if self._signal is not None:  # second Ctrl-C: the user means it
             signal.signal(signum, self._previous.get(signum, signal.SIG_DFL))
             raise KeyboardInterrupt
-        self._signal = signum
+        self._signal, name = signum, signal.Signals(signum).name
+        again = "send it again to abort without saving"
         log.warning(
-            "%s received: finishing the current iteration, then writing %s "
-            "(send it again to abort without saving)",
-            signal.Signals(signum).name,
-            self.path,
+            f"{name} received: finishing the current iteration, then writing {self.path} ({again})"
         )
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -124,46 +121,36 @@ class BestCheckpoint(ModelCheckpoint):
     here it carries over, and no file of the earlier folder (the run's record) is deleted."""
 
     def __init__(self, dirpath: str | Path, monitor: str = "val/euler_avg"):
+        # No "=" in the name (auto_insert_metric_name): it would not parse as ckpt_path=...
         super().__init__(
-            dirpath=dirpath,
-            # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
-            filename="best-iter{iteration:06d}",
-            auto_insert_metric_name=False,
-            monitor=monitor,
-            mode="min",
-            save_last=False,
-            save_top_k=1,
+            dirpath,
+            "best-iter{iteration:06d}",
+            monitor,
             save_weights_only=True,
+            auto_insert_metric_name=False,
         )
-        self._line: str | None = None  # the last validation's, logged once the best is saved
 
     def _monitor_candidates(self, trainer: L.Trainer) -> dict[str, torch.Tensor]:
         # The module's count (Lightning's step counted 2 per adversarial iteration before).
         iteration = torch.tensor(trainer.lightning_module.host_iteration)
         return {**super()._monitor_candidates(trainer), "iteration": iteration}
 
-    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        super().on_validation_end(trainer, pl_module)
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_train_epoch_end(trainer, pl_module)  # saves the best of the epoch's validation
         metrics, prefix = trainer.callback_metrics, "val_euler/average/"
-        if trainer.sanity_checking or not trainer.is_global_zero or self.monitor not in metrics:
+        if not trainer.is_global_zero or self.monitor not in metrics:
             return
         horizons = ", ".join(
             f"{int(k[len(prefix) : -2])} ms {float(v):.3f}"
             for k, v in sorted(metrics.items())
             if k.startswith(prefix)
         )
-        self._line = (
+        best, average = self.best_model_score, float(metrics[self.monitor])
+        best = "no best" if best is None else f"best {best:.4f}: {Path(self.best_model_path).name}"
+        log.info(
             f"validation at iteration {pl_module.host_iteration}: Euler error {horizons}; "
-            f"average {float(metrics[self.monitor]):.4f}"
+            f"average {average:.4f} ({best})"
         )
-
-    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        super().on_train_epoch_end(trainer, pl_module)  # the best is saved here (val_every)
-        line, self._line = self._line, None
-        if line is not None:
-            best, path = self.best_model_score, Path(self.best_model_path).name
-            best = "no best" if best is None else f"best {float(best):.4f}: {path}"
-            log.info("%s (%s)", line, best)
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
         # Not Lightning's: in a new folder it warns "The dirpath has changed" and drops the score.
@@ -198,7 +185,7 @@ def read_checkpoint(path: str | Path) -> dict:
             f"cannot read checkpoint {path}: {_unreadable(path, err)}. Use another checkpoint "
             "of the run (last.ckpt, best-*.ckpt)."
         ) from err
-    if not isinstance(ckpt, dict) or "motion" not in ckpt or "state_dict" not in ckpt:
+    if not (isinstance(ckpt, dict) and {"motion", "state_dict"} <= ckpt.keys()):
         raise CheckpointError(
             f"{path} is not a checkpoint written by this project's training (no 'motion' "
             "section). Train one with `python -m src.train ...`."
@@ -241,20 +228,20 @@ def require_resumable(ckpt: dict, path: str | Path) -> None:
 
 def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
     """Refuse a checkpoint whose model or data differ from what the config asks for."""
-    saved = ckpt["motion"]["config"]
-    problems = []
-    if cfg.get("model") is not None and cfg.model.name != saved["model"]["name"]:
+    saved, problems = ckpt["motion"]["config"], []
+    model, data = cfg.get("model"), cfg.get("data")
+    if model is not None and model.name != saved["model"]["name"]:
         problems.append(
-            f"architecture: checkpoint is {saved['model']['name']}, config asks for "
-            f"model={cfg.model.name}"
+            f"architecture: checkpoint is {saved['model']['name']}, config asks "
+            f"for model={model.name}"
         )
-    if cfg.get("data") is not None and cfg.data.name != saved["data"]["name"]:
+    if data is not None and data.name != saved["data"]["name"]:
         problems.append(
-            f"dataset: checkpoint was trained on {saved['data']['name']}, config asks for "
-            f"data={cfg.data.name}"
+            f"dataset: checkpoint was trained on {saved['data']['name']}, config "
+            f"asks for data={data.name}"
         )
-    if cfg.get("model") is not None and not problems:
-        want, have = OmegaConf.to_container(cfg.model.net, resolve=True), saved["model"]["net"]
+    if model is not None and not problems:
+        want, have = OmegaConf.to_container(model.net, resolve=True), saved["model"]["net"]
         diff = [
             f"{k}={have[k]} in checkpoint vs {v}"
             for k, v in want.items()

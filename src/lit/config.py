@@ -231,13 +231,6 @@ def _reworded(err: OmegaConfBaseException, path: str) -> str:
     return f"{key}={err.value!r} must be {words.get(kind, 'of another type')}."
 
 
-# What a value written for a node of each type must be: its Python types, and in words.
-_WRITTEN = {BooleanNode: ((bool,), ["true", "false"]), IntegerNode: ((int,), ["a whole number"]),
-            FloatNode: ((int, float), ["a number"]), StringNode: ((object,), ["a string"]),
-            ListConfig: ((object,), ["a list"]),
-            DictConfig: ((object,), ["a mapping"])}  # fmt: skip
-
-
 def _words(node: Any) -> str:
     """What a value of `node` is, in words: "a whole number or null", "true or false"."""
     if isinstance(node, AnyNode):  # untyped, and holding a boolean word
@@ -245,7 +238,9 @@ def _words(node: Any) -> str:
     if isinstance(node, EnumNode):
         items = [m.name for m in node._metadata.ref_type]
     else:
-        items = list(_WRITTEN.get(type(node), (None, ["a value"]))[1])
+        items = {BooleanNode: ["true", "false"], IntegerNode: ["a whole number"],
+                 FloatNode: ["a number"], StringNode: ["a string"], ListConfig: ["a list"],
+                 DictConfig: ["a mapping"]}.get(type(node), ["a value"])  # fmt: skip
     items += ["null"] if node._is_optional() else []
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " or " + items[-1]
 
@@ -270,10 +265,15 @@ def _check_as_written(plain: Any, typed: Any, path: str) -> None:
 
 
 def _as_written(value: Any, node: Any) -> bool:
-    if isinstance(node, AnyNode):
-        return str(value).lower() not in BOOLEAN_WORDS
-    kinds = _WRITTEN.get(type(node), ((object,),))[0]
-    return isinstance(value, kinds) and not (isinstance(value, bool) and int in kinds)
+    if isinstance(node, BooleanNode):
+        return isinstance(value, bool)
+    if isinstance(node, (IntegerNode, FloatNode)) and isinstance(value, bool):
+        return False
+    if isinstance(node, IntegerNode):
+        return isinstance(value, int)
+    if isinstance(node, FloatNode):
+        return isinstance(value, (int, float))
+    return not (isinstance(node, AnyNode) and str(value).lower() in BOOLEAN_WORDS)
 
 
 def _check_ranges(plain: dict, schema: type, path: str) -> None:

@@ -1,12 +1,11 @@
-"""The LightningModule shared by every architecture and baseline.
+"""The LightningModule of every architecture and baseline.
 
-One training iteration of Li et al. (protocol §6.6), optimised by hand: the discriminator
-objective, eq. (8), on one batch, then the generator objective, eq. (9) = reconstruction (7) +
-lambda_2 * L2(weights) + lambda_adv * adversarial term, on a *different* batch; without a
-discriminator the generator's step alone. Given to any Trainer with its datamodule it trains as
-src.train does: it sets the draws per iteration, stops at `iterations`, and global_step counts
-iterations. Validation decodes fully autoregressively (eta = 1, dropout off) and reports the
-Euler-angle error (protocol §4) and MPJPE per action and horizon.
+A training iteration of Li et al. (protocol §6.6), optimised by hand: the discriminator's
+objective, eq. (8), on one batch, then the generator's, eq. (9) = reconstruction (7) +
+lambda_2 * L2(weights) + lambda_adv * adversarial term, on another batch (without a
+discriminator, the generator's step alone). Any Trainer trains it as src.train does: it sets
+the draws per iteration, stops at `iterations`, and global_step counts iterations. Validation
+decodes autoregressively (eta = 1) and reports Euler error (protocol §4) and MPJPE.
 """
 
 from __future__ import annotations
@@ -30,7 +29,7 @@ from src.metrics.mpjpe import MPJPE
 
 
 class NonFiniteLossError(RuntimeError):
-    """Training produced a NaN or inf loss."""
+    """Training produced a NaN or inf loss or weight."""
 
 
 def l2_penalty(module: nn.Module) -> Tensor:
@@ -138,11 +137,11 @@ class MotionPredictor(L.LightningModule):
         ]
         return optimizers, schedulers
 
-    def on_train_start(self) -> None:  # after a resume restored `iteration`; on the fit's device
+    def on_train_start(self) -> None:  # after a resume restored `iteration`
         self._host_iteration, self._compiled = None, None
 
     def on_fit_start(self) -> None:
-        # add_l2_gradient_ adds to the gradients after backward, so they must not be scaled.
+        # add_l2_gradient_ adds to the gradients after backward: they must not be scaled.
         if getattr(self.trainer.precision_plugin, "scaler", None) is not None:
             raise ValueError(
                 "trainer.precision=16-mixed scales the gradients, which the L2 term of eq. (9) "
@@ -218,11 +217,10 @@ class MotionPredictor(L.LightningModule):
     def _objectives(self):
         """(compiled?, discriminator objective, generator objective)."""
         if self._compiled is None:
-            # auto: not under DDP (compiling a bound method of the inner module: untested).
+            # auto: on one CUDA device (compiling the inner module of DDP is untested).
             single = self._trainer is None or self.trainer.world_size == 1
-            on = self.compile_step is True or (
-                self.compile_step == "auto" and self.device.type == "cuda" and single
-            )
+            auto = self.device.type == "cuda" and single
+            on = self.compile_step is True or (self.compile_step == "auto" and auto)
             d, g = self._d_objective, self._g_objective
             if on:
                 # A fresh compiler state per fit: torch refuses the 9th graph of a function
@@ -268,8 +266,7 @@ class MotionPredictor(L.LightningModule):
             getattr(opt_d, "optimizer", opt_d).step()
             self.untoggle_optimizer(opt_d)
             # Clones: a CUDA graph's outputs are overwritten by its next replay.
-            logs["train/loss_d"] = loss_d.clone()
-            logs["train/d_real"] = d_real.clone()
+            logs |= {"train/loss_d": loss_d.clone(), "train/d_real": d_real.clone()}
             observed, future, action = obs_g, fut_g, act_g
 
         opt_g = optimizers[0]
@@ -309,8 +306,18 @@ class MotionPredictor(L.LightningModule):
             self.log("train/loss_recon_bar", _host(loss_recon.item()), prog_bar=True, logger=False)
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
 
-    def _recent(self) -> list[dict[str, float]]:
-        return [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
+    def _stop(self, what: str) -> None:
+        """Stop on non-finite numbers, naming the last finite losses and the last good checkpoint
+        (`last_checkpoint`, set by src.train)."""
+        recent = [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
+        path = getattr(self, "last_checkpoint", None)
+        note = f"The last good checkpoint is {path}; resume from it with ckpt_path={path}."
+        if path is None or not Path(path).is_file():
+            note = "No checkpoint was written before this point."
+        raise NonFiniteLossError(
+            f"{what}. Last finite losses (oldest first): {recent or 'none yet'}. {note} Lower "
+            "the learning rate or check the data."
+        )
 
     def _check_finite(self, *objectives: dict[str, Tensor]) -> None:
         """Stop on a non-finite loss, naming those of the first objective that has one (D's
@@ -321,14 +328,10 @@ class MotionPredictor(L.LightningModule):
         for objective in objectives:
             bad = {k: v.item() for k, v in objective.items() if not torch.isfinite(v)}
             if bad:
-                raise NonFiniteLossError(
-                    f"non-finite loss at training iteration {self.host_iteration}: {bad}. "
-                    f"Last finite losses (oldest first): {self._recent() or 'none yet'}. "
-                    f"{self._last_checkpoint_note()} Lower the learning rate or check the data."
-                )
+                self._stop(f"non-finite loss at training iteration {self.host_iteration}: {bad}")
 
     def forward(self, observed: Tensor, future_len: int, action: Tensor | None = None) -> Tensor:
-        """Fully autoregressive prediction in normalised space (eta = 1, no ground truth)."""
+        """Autoregressive prediction in normalised space (eta = 1, no ground truth)."""
         return self.net(observed, future_len, action=action)
 
     def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
@@ -381,18 +384,11 @@ class MotionPredictor(L.LightningModule):
         nets = [self.net] if self.discriminator is None else [self.net, self.discriminator]
         bad = [n for net in nets for n, p in net.named_parameters() if not p.isfinite().all()]
         if bad:
-            raise NonFiniteLossError(
+            names = ", ".join(bad[:3]) + (", ..." if len(bad) > 3 else "")
+            self._stop(
                 f"non-finite weights after training iteration {int(self.iteration)} "
-                f"({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''}); no checkpoint was "
-                f"written from them. {self._last_checkpoint_note()} "
-                f"Last finite losses (oldest first): {self._recent() or 'none yet'}."
+                f"({names}); no checkpoint was written from them"
             )
-
-    def _last_checkpoint_note(self) -> str:
-        path = getattr(self, "last_checkpoint", None)
-        if path is None or not Path(path).is_file():
-            return "No checkpoint was written before this point."
-        return f"The last good checkpoint is {path}; resume from it with ckpt_path={path}."
 
     def on_validation_start(self) -> None:
         self._check_finite_weights()
@@ -410,14 +406,12 @@ class MotionPredictor(L.LightningModule):
         rng = checkpoint.get("rng", {})
         if "torch" in rng:
             torch.set_rng_state(rng["torch"])
-        cuda = rng.get("cuda")
-        if cuda is not None and torch.cuda.is_available():
-            count = torch.cuda.device_count()
+        cuda, count = rng.get("cuda"), torch.cuda.device_count()
+        if cuda is not None and count:
             if len(cuda) != count:
                 rank_zero_warn(
-                    f"the checkpoint holds the random state of {len(cuda)} CUDA devices, this "
-                    f"machine has {count}: dropout masks after the resume differ from an "
-                    "uninterrupted run"
+                    f"the checkpoint holds the random state of {len(cuda)} CUDA "
+                    f"devices, this machine has {count}: other dropout masks follow"
                 )
             for i, state in enumerate(cuda[:count]):
                 torch.cuda.set_rng_state(state, i)

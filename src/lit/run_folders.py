@@ -9,7 +9,6 @@ what is found later (a misspelt action) removes the folder made for it.
 from __future__ import annotations
 
 import contextlib
-import copy
 import os
 import re
 import shutil
@@ -85,19 +84,19 @@ def holds_run(folder: Path) -> bool:
     return (folder / "config.yaml").exists() or any(folder.glob("checkpoints/*.ckpt"))
 
 
-_claimed: dict = {}  # this process's folder: {"folder", "created", "before", "parents"}
+_claimed: dict = {}  # this process's folder, what it held before, the folders made for it
 
 
 def claim_run_folder(folder: str | os.PathLike, exact: bool = False) -> Path:
     """Create this run's folder, which no other process can get. exact=True: the user named
     it; an existing one is used only if it holds no run (the .hydra/ made here is the claim)."""
     folder = Path(folder)
-    parents = [p for p in folder.parents if not p.exists()]
+    made = [p for p in folder.parents if not p.exists()]
     if not exact:
         folder = claim_folder(folder)
-        _claimed.update(folder=folder, created=True, before=set(), parents=parents)
+        _claimed.update(folder=folder, before=set(), made=[folder, *made])
         return folder
-    created = not folder.exists()
+    made = made if folder.exists() else [folder, *made]
     folder.mkdir(parents=True, exist_ok=True)
     before = set(os.listdir(folder))
     try:
@@ -111,7 +110,7 @@ def claim_run_folder(folder: str | os.PathLike, exact: bool = False) -> Path:
             "written to it. Name another folder, or leave hydra.run.dir out to get a new "
             "timestamped one."
         ) from None
-    _claimed.update(folder=folder, created=created, before=before, parents=parents)
+    _claimed.update(folder=folder, before=before, made=made)
     return folder
 
 
@@ -128,15 +127,12 @@ def nothing_left_if_refused(started: str | None = "config.yaml"):
             raise
         if started and (folder / started).exists():
             raise
-        if _claimed["created"]:
-            shutil.rmtree(folder, ignore_errors=True)
-            for parent in _claimed["parents"]:
-                with contextlib.suppress(OSError):  # only if empty: another run may use it
-                    parent.rmdir()
-        else:
-            for name in set(os.listdir(folder)) - _claimed["before"]:
-                path = folder / name
-                shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        for name in set(os.listdir(folder)) - _claimed["before"]:
+            path = folder / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        for made in _claimed["made"]:
+            with contextlib.suppress(OSError):  # only if empty: another run may use a parent
+                made.rmdir()
         raise
 
 
@@ -175,22 +171,18 @@ class PrepareRun(Callback):
 
     @staticmethod
     def _prepare_training(config: DictConfig) -> None:
-        task = copy.deepcopy(config)
-        with read_write(task), open_dict(task):
-            del task["hydra"]
+        task = OmegaConf.masked_copy(config, [k for k in config if k != "hydra"])
         overrides = list(config.hydra.overrides.task)
         choices = OmegaConf.to_container(config.hydra.runtime.choices)
         restored, resume = prepare_training(task, overrides, choices)
         if resume is None:
             return
-        # The run's settings become this job's: .hydra/ and the folder's name are the run's.
-        values = OmegaConf.to_container(restored, resolve=False)
+        # The run's settings become this job's, before its folder is named from them
+        # (run_name, task_name, paths.log_dir); .hydra/ records the run's options.
         given = {o.split("=", 1)[0].lstrip("+~") for o in overrides}
         with read_write(config), open_dict(config):
-            for key in [k for k in config if k != "hydra"]:
-                del config[key]
-            for key, value in values.items():
-                config[key] = value
+            for key, value in OmegaConf.to_container(restored, resolve=False).items():
+                config[key] = value  # every key of `config` but hydra
             for group, option in (resume.run_choices or {}).items():
                 if group in config.hydra.runtime.choices and group not in given:
                     config.hydra.runtime.choices[group] = option
