@@ -6,6 +6,7 @@ anything runs; the ranges of keys no constructor reads (`within`) and a few comb
 checked here.
 """
 
+import contextlib
 import dataclasses
 import difflib
 import functools
@@ -296,16 +297,12 @@ def _resolved(node: DictConfig) -> dict:
     """`node` as plain values, resolved, without Hydra's node and the keys that point at state
     not set up yet (the run folder): they are not the user's text."""
     out = {}
-    for key in node:
-        if key == "hydra":
-            continue
-        try:
+    for key in (k for k in node if k != "hydra"):
+        with contextlib.suppress(Exception):  # any failure to resolve
             value = node[key]
             if isinstance(value, ListConfig):
                 value = OmegaConf.to_container(value, resolve=True)
-        except Exception:  # noqa: BLE001 (any failure to resolve)
-            continue
-        out[key] = _resolved(value) if isinstance(value, DictConfig) else value
+            out[key] = _resolved(value) if isinstance(value, DictConfig) else value
     return out
 
 

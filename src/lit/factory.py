@@ -39,8 +39,8 @@ def git_commit() -> str:
 
 
 def _instantiate(node, **kwargs):
-    """hydra.utils.instantiate, with what the constructor refused as the project's one-line
-    error (Hydra wraps it in an InstantiationException, which would print as a traceback)."""
+    """hydra.utils.instantiate; what the constructor refuses is a one-line error, not a
+    traceback of Hydra's InstantiationException."""
     try:
         return hydra.utils.instantiate(node, **kwargs)
     except InstantiationException as err:
@@ -84,8 +84,7 @@ def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None)
 
 
 def _instantiate_with_data(node: DictConfig, dm, **extra):
-    """A network, with what only the data knows: pose dimension, number of actions, the
-    convolution padding of protocol §6.7, the normaliser."""
+    """A network, with what only the data knows (padding: protocol §6.7)."""
     kwargs: dict[str, Any] = {"pose_dim": dm.pose_dim, "num_actions": dm.num_actions, **extra}
     if "normalizer" in inspect.signature(hydra.utils.get_class(node._target_)).parameters:
         kwargs["normalizer"] = dm.normalizer
@@ -95,8 +94,7 @@ def _instantiate_with_data(node: DictConfig, dm, **extra):
 
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
-    """The LightningModule of `cfg.model`, `.adversarial`, `.sampling` on `dm`: a set-up
-    datamodule, or what load_trained reads of a checkpoint."""
+    """The LightningModule of `cfg` on `dm`, a set-up datamodule or load_trained's stand-in."""
     net = _instantiate_with_data(cfg.model.net, dm)
     trainable = any(p.requires_grad for p in net.parameters())
     model, adv, compile_ = cfg.model, cfg.get("adversarial") or {}, cfg.get("compile") or {}
@@ -177,8 +175,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
 
 
 def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normalizer=None):
-    """The set-up datamodule of the test windows of `data_cfg` (default: `cfg.data`) under
-    `cfg.protocol` (default: the data config's own)."""
+    """The datamodule of the test windows of `data_cfg` (or `cfg.data`), set up."""
     if data_cfg is None and cfg.get("data") is None:
         raise ConfigError(
             "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
@@ -193,9 +190,8 @@ def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normali
 
 
 def build_for_evaluation(cfg: DictConfig):
-    """(datamodule of the test windows, module) for src.eval and src.visualize: the trained
-    model of `cfg.ckpt_path` on its own data config, or the baseline `cfg.model` on
-    `cfg.data`; `module.run_info["config"]` names both."""
+    """(test windows' datamodule, module) of src.eval and src.visualize: the trained model of
+    `cfg.ckpt_path` on its own data config, or the baseline `cfg.model` on `cfg.data`."""
     if cfg.ckpt_path:
         module = load_trained(cfg.ckpt_path, cfg)
         data_cfg = OmegaConf.create(module.run_info["config"]["data"])

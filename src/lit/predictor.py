@@ -41,8 +41,7 @@ def l2_penalty(module: nn.Module) -> Tensor:
 
 
 def _host(value: float) -> Tensor:
-    """A logged number as a CPU tensor: Lightning would copy a float to the module's device,
-    on a GPU a host sync per number per iteration."""
+    """A logged number as a CPU tensor: Lightning copies a float to the device (a host sync)."""
     return torch.tensor(value, dtype=torch.float32)
 
 
@@ -203,8 +202,7 @@ class MotionPredictor(L.LightningModule):
     def _g_objective(
         self, observed: Tensor, future: Tensor, action: Tensor, eta: float | Tensor
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """eq. (9) without its L2 term (added as a gradient): (loss, reconstruction (7),
-        adversarial term or 0)."""
+        """eq. (9) but its L2 term (a gradient): (loss, reconstruction (7), adversarial or 0)."""
         pred = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
         loss_recon = F.mse_loss(pred, future)  # eq. (7), mean over batch x T x D as the reference
         if not self.adversarial:
@@ -307,8 +305,7 @@ class MotionPredictor(L.LightningModule):
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
 
     def _stop(self, what: str) -> None:
-        """Stop on non-finite numbers, naming the last finite losses and the last good checkpoint
-        (`last_checkpoint`, set by src.train)."""
+        """Stop, naming the last finite losses and the last good checkpoint (src.train's)."""
         recent = [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
         path = getattr(self, "last_checkpoint", None)
         note = f"The last good checkpoint is {path}; resume from it with ckpt_path={path}."
@@ -320,8 +317,7 @@ class MotionPredictor(L.LightningModule):
         )
 
     def _check_finite(self, *objectives: dict[str, Tensor]) -> None:
-        """Stop on a non-finite loss, naming those of the first objective that has one (D's
-        makes G's non-finite too). One host sync for all."""
+        """Stop on a non-finite loss, naming the first objective's (D's makes G's non-finite)."""
         losses = [v.detach() for objective in objectives for v in objective.values()]
         if bool(torch.isfinite(torch.stack(losses)).all()):
             return
@@ -335,8 +331,7 @@ class MotionPredictor(L.LightningModule):
         return self.net(observed, future_len, action=action)
 
     def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
-        """The unnormalised prediction (B, T, F) of a batch of test windows (src.scoring puts a
-        file's predictions in its place)."""
+        """The unnormalised prediction (B, T, F) of test windows (src.scoring swaps in a file's)."""
         pred = self(batch["observed"], batch["future"].shape[1], action=batch["action"])
         return self.normalizer.unnormalize(pred)
 

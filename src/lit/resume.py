@@ -97,23 +97,18 @@ def _shown(value: Any) -> Any:
     return "absent" if value is _ABSENT else value
 
 
-def _leaves(root: DictConfig, path: str) -> dict[str, Any]:
-    """The resolved leaves under `path` but the FROM_HERE and FREE ones (which may point at
+def _leaves(root: DictConfig, key: str, tree: Any = _ABSENT) -> dict[str, Any]:
+    """The resolved leaves under `key` but the FROM_HERE and FREE ones (which may point at
     Hydra state not set up yet), by dotted key."""
-    out: dict[str, Any] = {}
-
-    def walk(value: Any, key: str) -> None:
-        if _under(key, FROM_HERE) or _free(key):
-            return
-        if isinstance(value, dict) and value:
-            for k, v in value.items():
-                walk(v, f"{key}.{k}" if key else str(k))
-        else:
-            out[key] = _get(root, key)
-
-    node = OmegaConf.select(root, path) if path else root
-    walk(OmegaConf.to_container(node, resolve=False) if isinstance(node, DictConfig) else {}, path)
-    return out
+    if tree is _ABSENT:
+        tree = OmegaConf.to_container(root, resolve=False)
+        tree = _raw(tree, key) if key else tree
+    if _under(key, FROM_HERE) or _free(key):
+        return {}
+    if not (isinstance(tree, dict) and tree):
+        return {key: _get(root, key)}
+    subs = {f"{key}.{sub}".lstrip("."): value for sub, value in tree.items()}
+    return {k: v for sub, value in subs.items() for k, v in _leaves(root, sub, value).items()}
 
 
 def restore_run(
