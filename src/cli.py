@@ -1,16 +1,15 @@
-"""What the entry points share on the command line: one-line errors instead of tracebacks,
-written `--help` pages, and only the warnings that are true for this project.
+"""What the entry points share: one-line errors instead of tracebacks, written `--help` pages,
+and only the warnings that are true for this project.
 
-`hydra_entry` is the decorator of the Hydra entry points (train, eval, visualize,
-export_windows). Every refusal reaches the user through `src.lit.run_folders.refuse`: the
-project's errors raised by the task (`friendly_errors`, also used by src.report and
-src.plot_errors), those of the run-folder callback, and what Hydra rejects while composing (a
-misspelt key or option, an unparsable override), reworded below where Hydra's own text is
-several lines without the valid choices. HYDRA_FULL_ERROR=1 shows Hydra's traceback.
+`hydra_entry` decorates the Hydra entry points. Every refusal reaches the user through
+`run_folders.refuse`: the project's errors (`friendly_errors`), the run-folder callback's, and
+what Hydra rejects while composing (a misspelt key or option, an unparsable override), reworded
+below with the valid choices. HYDRA_FULL_ERROR=1 shows Hydra's traceback.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import functools
@@ -20,26 +19,20 @@ import sys
 import warnings
 
 import hydra
-from hydra.errors import (
-    ConfigCompositionException,
-    MissingConfigException,
-    OverrideParseException,
-    SearchPathException,
-)
+from hydra.errors import ConfigCompositionException as Composition
+from hydra.errors import MissingConfigException, OverrideParseException, SearchPathException
 from omegaconf import DictConfig, OmegaConf
 
 from src.lit.config import constructor_schema
-from src.lit.factory import PROJECT_ROOT, ConfigError
+from src.lit.factory import PROJECT_ROOT
 from src.lit.run_folders import USER_ERRORS, refuse
 
 CONF_DIR = PROJECT_ROOT / "conf"
-# What Hydra raises while it composes the config from the command line, before the task runs.
-HYDRA_USER_ERRORS = (ConfigCompositionException, OverrideParseException, SearchPathException)
+HYDRA_USER_ERRORS = (Composition, OverrideParseException, SearchPathException)
 
 
 def group_options(group: str) -> str:
-    """The options of a config group, read from conf/<group>/: "cmu, h36m, synthetic" (the
-    `options` resolver of the --help pages, so that a page lists what exists)."""
+    """The options of conf/<group>/, "cmu, h36m, synthetic" (the --help pages' resolver)."""
     return ", ".join(sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml")))
 
 
@@ -48,7 +41,7 @@ if not OmegaConf.has_resolver("options"):
 
 
 def friendly_errors(fn):
-    """Print the project's own errors as one message and exit with status 2."""
+    """The project's errors as one line, exit status 2."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -61,10 +54,9 @@ def friendly_errors(fn):
 
 
 def check_installation() -> None:
-    """The configs live in conf/ beside the package in the clone; `pip install .` (not
-    editable) copies only the package into site-packages, where Hydra then finds no configs."""
+    """`pip install .` (not editable) copies only the package, without conf/."""
     if not (CONF_DIR / "train.yaml").is_file():
-        raise ConfigError(
+        refuse(
             f"the project's configs are missing: {CONF_DIR} holds no train.yaml, so the package "
             f"was run from {PROJECT_ROOT / 'src'} without the clone it belongs to (as after "
             "`pip install .`, which copies only the Python code). Fix: `pip uninstall "
@@ -74,8 +66,7 @@ def check_installation() -> None:
 
 
 def silence_false_warnings() -> None:
-    """Leave out what the libraries print that is false or idle for this project, each message
-    by its own text, so that the warnings that remain are true ones."""
+    """Leave out what the libraries print that is false or idle here, each by its own text."""
     # Lightning 2.6 builds torch's deprecated LeafSpec itself; nothing a user can change.
     leaf_spec = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
     warnings.filterwarnings("ignore", message=leaf_spec, category=FutureWarning)
@@ -100,10 +91,7 @@ def hydra_entry(config_name: str):
             if cfg_passthrough is not None:
                 return task(cfg_passthrough)
             silence_false_warnings()
-            try:
-                check_installation()
-            except ConfigError as err:
-                refuse(err)
+            check_installation()
             if config_name in ("eval", "visualize") and not any(
                 a.startswith("data=") for a in sys.argv
             ):  # a checkpoint brings its data config; a partial copy is the machine's fact
@@ -153,8 +141,8 @@ def hydra_error(err: Exception, config_name: str) -> str:
 
 
 def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
-    """`key` names `missing`, which `parent` lacks: name the close keys that exist, and the
-    constructor arguments of an instantiated node that a + adds."""
+    """`key` names `missing`, which `parent` lacks: the close keys, and the constructor
+    arguments a + adds."""
     where = parent._get_full_key(None) or ""
     rest = key[len(where) + len(missing) + (1 if where else 0) :]
     if not where and (CONF_DIR / missing).is_dir():  # a group left unchosen (eval's data)
@@ -163,8 +151,10 @@ def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
             f"before it: {missing}={group_options(missing).replace(', ', '|')} {key}=<value>."
         )
     present = [str(k) for k in parent if not str(k).startswith("_") and k != "hydra"]
-    target = parent.get("_target_") if not rest else None
-    addable = [a for a in _arguments(target) if a not in parent and a[0] != "_"] if target else []
+    addable = []
+    with contextlib.suppress(Exception):  # no constructor (or an unknown one): no argument
+        fields = dataclasses.fields(constructor_schema(parent["_target_"])) if not rest else ()
+        addable = [f.name for f in fields if f.name not in parent and f.name[0] != "_"]
     if rest:  # the key goes deeper: only a group of settings can match
         present = [k for k in present if isinstance(parent.get(k), DictConfig)]
     close = difflib.get_close_matches(missing, present + addable, n=3, cutoff=0.6)
@@ -173,10 +163,3 @@ def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
     hint = f" Did you mean {' or '.join(spelt)}?" if close else ""
     keys = ", ".join(sorted(present))
     return f"{key}: no such key.{hint} Keys under {where or 'the top level'}: {keys}."
-
-
-def _arguments(target: str) -> list[str]:
-    try:
-        return [f.name for f in dataclasses.fields(constructor_schema(target))]
-    except Exception:  # noqa: BLE001 (an unknown target: only the suggestions are lost)
-        return []

@@ -37,13 +37,7 @@ from src.lit.checkpoints import (
     read_checkpoint,
     require_resumable,
 )
-from src.lit.factory import (
-    ConfigError,
-    build_datamodule,
-    build_module,
-    build_trainer,
-    git_commit,
-)
+from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
@@ -55,15 +49,14 @@ log = logging.getLogger(__name__)
 
 
 def train(cfg: DictConfig) -> float:
-    # A resume continues the run's own config; prepared (and checked) once, before the run
-    # folder was made when the command line started this run.
+    # A resume continues the run's own config; prepared and checked once (on the command
+    # line, before the run folder was made).
     hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
     overrides = list(hydra_cfg.overrides.task) if hydra_cfg else []
     choices = OmegaConf.to_container(hydra_cfg.runtime.choices) if hydra_cfg else {}
     cfg, resume = prepare_training(cfg, overrides, choices)
     out_dir = Path(cfg.paths.output_dir)
-    # Two runs started within the same second, or sweep jobs differing only in an excluded key
-    # (seed), would otherwise write over each other; DDP's other ranks use rank 0's folder.
+    # E.g. a folder given in-process that holds a run; DDP's other ranks use rank 0's folder.
     if rank_zero_only.rank == 0 and holds_run(out_dir):
         raise ConfigError(
             f"the run folder {out_dir} already holds another run; nothing was overwritten. "
@@ -92,61 +85,51 @@ def train(cfg: DictConfig) -> float:
         if resume is not None:
             log.info("%s", describe(resume, done))
 
+    sections = ("model", "data", "sampling", "adversarial", "metrics")
     run_info = {
-        "config": {
-            key: OmegaConf.to_container(cfg[key], resolve=True)
-            for key in ("model", "data", "sampling", "adversarial", "metrics")
-        },
+        "config": {key: OmegaConf.to_container(cfg[key], resolve=True) for key in sections},
         "commit": git_commit(),
         "missing_files": list(dm.missing_files),
     }
     module = build_module(cfg, dm, run_info=run_info)  # it stops at cfg.iterations
 
-    # Under fast_dev_run Lightning swaps this logger for a dummy; only touching
-    # logger.experiment (the error-curve layout below) would still write an events file.
+    # Under fast_dev_run Lightning swaps the logger for a dummy, but logger.experiment (the
+    # layout below) would still write an events file.
     fast_dev_run = bool(cfg.trainer.get("fast_dev_run"))
     logger = TensorBoardLogger(
         save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False
     )
     every = cfg.progress_every_s
-    progress = [] if every is None else [ProgressLog(cfg.iterations, every)]
+    callbacks = [*FrameStripLogger.from_config(cfg)]
+    callbacks += [] if every is None else [ProgressLog(cfg.iterations, every)]
     checkpoints = BestCheckpoint(out_dir / "checkpoints")
     last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path
-    # Training time over every segment of a resumed run: Timer keeps it in the checkpoint.
-    # Known only when the resumed checkpoint holds it (older ones do not).
+    # Training time over every segment of a run: Timer keeps it in the checkpoint (older
+    # checkpoints lack it: then unknown).
     timer = Timer()
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
         cfg.trainer,
         max_epochs=-1,  # the module stops at `iterations`
         logger=logger,
-        callbacks=[
-            timer,
-            checkpoints,
-            last,
-            LearningRateMonitor("step"),
-            *FrameStripLogger.from_config(cfg),
-            *progress,
-        ],
+        callbacks=[timer, checkpoints, last, LearningRateMonitor("step"), *callbacks],
     )
     if trainer.is_global_zero:
         if not fast_dev_run:
             add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
+        out_dir.mkdir(parents=True, exist_ok=True)  # in-process under fast_dev_run, none made it
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()
     with warnings.catch_warnings():
-        # False here: the training sampler continues a resumed epoch at the exact batch
-        # (MotionPredictor.on_fit_start; tests/test_runs.py resumes bit for bit).
+        # False here: the training sampler continues a resumed epoch at the exact batch.
         warnings.filterwarnings("ignore", message=".*your dataloader is not resumable")
         trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
     wall = time.perf_counter() - start
 
-    final = {
-        key: float(trainer.callback_metrics.get(f"val/{key}", torch.tensor(float("nan"))))
-        for key in ("euler_avg", "mpjpe_avg")
-    }
+    metrics = trainer.callback_metrics
+    final = {k: float(metrics.get(f"val/{k}", math.nan)) for k in ("euler_avg", "mpjpe_avg")}
     best = checkpoints.best_model_score
     score = float(best) if best is not None else final["euler_avg"]
     best_path = checkpoints.best_model_path  # of the whole run: BestCheckpoint carries it over
@@ -174,25 +157,19 @@ def train(cfg: DictConfig) -> float:
     return score
 
 
-def _train_or_discard(cfg: DictConfig) -> float:
-    # Refused before training started: the folder claimed for it goes, so nothing of a
-    # refused run is left behind; a run that failed later (config.yaml written) keeps it.
-    with nothing_left_if_refused("config.yaml"):
-        return train(cfg)
-
-
 @hydra_entry("train")
 def main(cfg: DictConfig) -> float:
     try:
-        score = _train_or_discard(cfg)
+        # Refused before config.yaml is written: the folder claimed for it goes.
+        with nothing_left_if_refused("config.yaml"):
+            score = train(cfg)
     except TrainingInterrupted as err:
         log.warning("%s", err)
         raise SystemExit(128 + err.signum) from None
     except NonFiniteLossError as err:
         if HydraConfig.get().mode != RunMode.MULTIRUN:
             raise
-        # In a sweep a diverged run is a result, not a crash: it scores +inf (the worst) and
-        # the other runs, or the Optuna study, go on (docs/cluster.md).
+        # In a sweep a diverged run is a result: +inf, and the study goes on (docs/cluster.md).
         log.error("run diverged, scored +inf: %s", err)
         return math.inf
     # The Optuna sweeper cannot record NaN (it would stop the study): no result is the worst.

@@ -1,16 +1,16 @@
-"""Checkpoint files: writing them during training, reading and checking them. Two per run:
+"""Checkpoint files: written during training, read and checked. Two per run:
 
-- `last.ckpt`, the resume point (weights, both optimisers, LR schedulers, loop counters, random
-  state), rewritten atomically at every validation, every `checkpoint_every` iterations and on
-  SIGINT/SIGTERM. Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it only with a new
-  best, so a run whose error rose kept an old one and a resume silently redid the work.
+- `last.ckpt`, the resume point (weights, optimisers, LR schedulers, loops, random state),
+  rewritten atomically at every validation, every `checkpoint_every` iterations and on
+  SIGINT/SIGTERM. (Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it only with a new
+  best: a run whose error rose kept an old one.)
 - `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40), the best validation of the
-  whole run, resumes included, named by its iteration: lean (weights, normaliser, config,
-  actions), for `src.eval` and `MotionForecaster`.
+  whole run, resumes included: lean (weights, normaliser, config, actions), for evaluation.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import signal
@@ -46,15 +46,12 @@ class TrainingInterrupted(RuntimeError):
         )
 
 
-# ---------------------------------------------------------------------------- writing
 class LastCheckpoint(Checkpoint):
-    """Writes the resumable `last.ckpt` at every validation, every `every` iterations (0: off)
-    and, on SIGINT/SIGTERM, after the iteration in progress; then training stops with
-    TrainingInterrupted. A second signal aborts at once.
-
-    A `Checkpoint` subclass so that the Trainer runs it after every other callback: the state
-    it saves (random generator included) is then the state the next iteration starts from,
-    whatever the other callbacks' hooks did at the same point (the frame-strip logger draws)."""
+    """Writes `last.ckpt` at every validation, every `every` iterations (0: off) and, on
+    SIGINT/SIGTERM, after the iteration in progress, then stops with TrainingInterrupted; a
+    second signal aborts at once. A `Checkpoint` subclass, which the Trainer runs after every
+    other callback: the random state it saves is the one the next iteration starts from,
+    whatever the others drew (the frame-strip logger)."""
 
     def __init__(self, dirpath: str | Path, every: int = 0):
         self.path = Path(dirpath) / LAST
@@ -62,14 +59,11 @@ class LastCheckpoint(Checkpoint):
         self._signal: int | None = None
         self._previous: dict[int, Any] = {}
 
-    # Handlers are installed inside fit (after Lightning's own SIGTERM connector) and the
-    # previous ones restored at teardown, so nothing outlives the run.
+    # Installed inside fit (after Lightning's SIGTERM connector), restored at teardown.
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         for signum in (signal.SIGINT, signal.SIGTERM):
-            try:
+            with contextlib.suppress(ValueError):  # not the main thread (a notebook's worker)
                 self._previous[signum] = signal.signal(signum, self._on_signal)
-            except ValueError:  # not the main thread (e.g. a notebook's worker): no handler
-                pass
 
     def teardown(self, trainer: L.Trainer, pl_module: L.LightningModule, stage: str) -> None:
         for signum, handler in self._previous.items():
@@ -80,17 +74,14 @@ class LastCheckpoint(Checkpoint):
         if self._signal is not None:  # second Ctrl-C: the user means it
             signal.signal(signum, self._previous.get(signum, signal.SIG_DFL))
             raise KeyboardInterrupt
-        self._signal = signum
+        self._signal, name = signum, signal.Signals(signum).name
+        again = "send it again to abort without saving"
         log.warning(
-            "%s received: finishing the current iteration, then writing %s "
-            "(send it again to abort without saving)",
-            signal.Signals(signum).name,
-            self.path,
+            f"{name} received: finishing the current iteration, then writing {self.path} ({again})"
         )
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        # Every rank takes part; only rank 0 writes. weights_only=False said, not defaulted
-        # to: Lightning logs a note at every save otherwise.
+        # Every rank takes part; rank 0 writes. weights_only said: Lightning notes it otherwise.
         if trainer.is_global_zero:
             atomic_write(self.path, lambda tmp: trainer.save_checkpoint(tmp, weights_only=False))
         else:
@@ -98,10 +89,8 @@ class LastCheckpoint(Checkpoint):
         trainer.strategy.barrier("last_checkpoint")
 
     def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:
-        """The signal that stops training, the same on every rank. A signal may reach one
-        process only (`kill <pid>` of the command a user started), or the ranks at different
-        iterations: a rank that stopped to save alone would wait at the save's barrier while
-        the others trained on, a hang. One all-reduce per iteration, in distributed runs only."""
+        """The signal that stops training, the same on every rank: a signal may reach one rank
+        only, which would wait alone at the save's barrier. One all-reduce per iteration."""
         if trainer.world_size == 1:
             return self._signal
         signum = torch.tensor(self._signal or 0, device=pl_module.device)
@@ -114,94 +103,69 @@ class LastCheckpoint(Checkpoint):
         if signum is not None:
             self.save(trainer, pl_module)
             raise TrainingInterrupted(signum, self.path, iteration)
-        # Not at the epoch's last iteration: its validation comes next and the epoch's end
-        # saves after it; a save here would hold the state from before that validation.
+        # Not at an epoch's last iteration: the epoch's end saves after its validation.
         if self.every and iteration % self.every == 0 and not trainer.is_last_batch:
             self.save(trainer, pl_module)
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        # An epoch is `val_every` iterations and ends with its validation, so this is the save
-        # after every validation. Not in on_validation_end: there the fit loop has not yet
-        # counted the epoch as processed, and a resume from that state runs the epoch's end
-        # again (a second validation, which draws from the random generator).
+        # An epoch (`val_every` iterations) ends with its validation. Not on_validation_end:
+        # the loop has not counted the epoch yet, and a resume would validate it again.
         if not trainer.fast_dev_run:
             self.save(trainer, pl_module)
 
 
 class BestCheckpoint(ModelCheckpoint):
-    """Lean `best-iterNNNNNN.ckpt` of the lowest validation error over the whole run; logs one
-    line per validation (iteration, error at each horizon, best so far).
-
-    A resumed run writes into a new folder; Lightning then forgets the best score
-    (ModelCheckpoint.load_state_dict keeps it only for the same dirpath) and would save a worse
-    model as 'best'. Here the score and path carry over, and a file of the earlier folder is
-    never deleted: that folder is the user's record of the run before the resume.
-    """
+    """Lean `best-iterNNNNNN.ckpt` of the lowest validation error of the whole run; logs a
+    line per validation (iteration, error at each horizon, best so far). A resume writes into a
+    new folder, where Lightning forgets the best score and would save a worse model as best:
+    here it carries over, and no file of the earlier folder (the run's record) is deleted."""
 
     def __init__(self, dirpath: str | Path, monitor: str = "val/euler_avg"):
+        # No "=" in the name (auto_insert_metric_name): it would not parse as ckpt_path=...
         super().__init__(
-            dirpath=dirpath,
-            # No "=" in file names: Hydra's override parser would choke on ckpt_path=...
-            filename="best-iter{iteration:06d}",
-            auto_insert_metric_name=False,
-            monitor=monitor,
-            mode="min",
-            save_last=False,
-            save_top_k=1,
+            dirpath,
+            "best-iter{iteration:06d}",
+            monitor,
             save_weights_only=True,
+            auto_insert_metric_name=False,
         )
-        self._line: str | None = None  # the last validation's, logged once the best is saved
 
     def _monitor_candidates(self, trainer: L.Trainer) -> dict[str, torch.Tensor]:
-        # The file name's count: the module's, which a resumed checkpoint of any version holds
-        # (Lightning's step counted 2 per adversarial iteration before this version).
+        # The module's count (Lightning's step counted 2 per adversarial iteration before).
         iteration = torch.tensor(trainer.lightning_module.host_iteration)
         return {**super()._monitor_candidates(trainer), "iteration": iteration}
 
-    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        super().on_validation_end(trainer, pl_module)
+    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_train_epoch_end(trainer, pl_module)  # saves the best of the epoch's validation
         metrics, prefix = trainer.callback_metrics, "val_euler/average/"
-        if trainer.sanity_checking or not trainer.is_global_zero or self.monitor not in metrics:
+        if not trainer.is_global_zero or self.monitor not in metrics:
             return
         horizons = ", ".join(
             f"{int(k[len(prefix) : -2])} ms {float(v):.3f}"
             for k, v in sorted(metrics.items())
             if k.startswith(prefix)
         )
-        self._line = (
+        best, average = self.best_model_score, float(metrics[self.monitor])
+        best = "no best" if best is None else f"best {best:.4f}: {Path(self.best_model_path).name}"
+        log.info(
             f"validation at iteration {pl_module.host_iteration}: Euler error {horizons}; "
-            f"average {float(metrics[self.monitor]):.4f}"
+            f"average {average:.4f} ({best})"
         )
 
-    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        super().on_train_epoch_end(trainer, pl_module)  # the best is saved here (val_every)
-        line, self._line = self._line, None
-        if line is not None:
-            best, path = self.best_model_score, Path(self.best_model_path).name
-            best = "no best" if best is None else f"best {float(best):.4f}: {path}"
-            log.info("%s (%s)", line, best)
-
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        if state_dict.get("dirpath", self.dirpath) == self.dirpath:
-            super().load_state_dict(state_dict)
-        else:
-            # A resume writes into a new folder by design: Lightning's "The dirpath has changed"
-            # warning would be false, and what it then drops is carried over below.
-            self.best_model_path = state_dict["best_model_path"]
+        # Not Lightning's: in a new folder it warns "The dirpath has changed" and drops the score.
+        self.best_model_path = state_dict["best_model_path"]
         score = state_dict.get("best_model_score")
         if score is not None and math.isfinite(float(score)):
-            self.best_model_score = torch.as_tensor(float(score))
-            self.best_model_path = state_dict.get("best_model_path", "")
-            self.best_k_models = {self.best_model_path: self.best_model_score}
+            self.best_model_score = self.kth_value = torch.as_tensor(float(score))
             self.kth_best_model_path = self.best_model_path
-            self.kth_value = self.best_model_score
+            self.best_k_models = {self.best_model_path: self.best_model_score}
 
     def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
         if Path(filepath).resolve().parent == Path(self.dirpath).resolve():
             super()._remove_checkpoint(trainer, filepath)
 
 
-# ---------------------------------------------------------------------------- reading
 def read_checkpoint(path: str | Path) -> dict:
     path = Path(path)
     if path.is_dir():  # name the files there: the folder may be a run's or its checkpoints/
@@ -214,15 +178,14 @@ def read_checkpoint(path: str | Path) -> dict:
             "outputs/train/runs/<run>/<time>/checkpoints/ (best-*.ckpt, last.ckpt)."
         )
     try:
-        # weights_only: a file from elsewhere cannot run code on load; this project's
-        # checkpoints hold only tensors and plain containers.
+        # weights_only: a file from elsewhere cannot run code on load.
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file
         raise CheckpointError(
             f"cannot read checkpoint {path}: {_unreadable(path, err)}. Use another checkpoint "
             "of the run (last.ckpt, best-*.ckpt)."
         ) from err
-    if not isinstance(ckpt, dict) or "motion" not in ckpt or "state_dict" not in ckpt:
+    if not (isinstance(ckpt, dict) and {"motion", "state_dict"} <= ckpt.keys()):
         raise CheckpointError(
             f"{path} is not a checkpoint written by this project's training (no 'motion' "
             "section). Train one with `python -m src.train ...`."
@@ -231,8 +194,8 @@ def read_checkpoint(path: str | Path) -> dict:
 
 
 def _unreadable(path: Path, err: Exception) -> str:
-    """Why torch.load failed, in words: torch says a paragraph for a file cut short and a bare
-    number ("101", a pickle opcode) for a text file."""
+    """Why torch.load failed, in words (torch says a paragraph for a file cut short, a pickle
+    opcode for a text file)."""
     with path.open("rb") as f:
         head = f.read(4)
     if not head:
@@ -265,20 +228,20 @@ def require_resumable(ckpt: dict, path: str | Path) -> None:
 
 def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
     """Refuse a checkpoint whose model or data differ from what the config asks for."""
-    saved = ckpt["motion"]["config"]
-    problems = []
-    if cfg.get("model") is not None and cfg.model.name != saved["model"]["name"]:
+    saved, problems = ckpt["motion"]["config"], []
+    model, data = cfg.get("model"), cfg.get("data")
+    if model is not None and model.name != saved["model"]["name"]:
         problems.append(
-            f"architecture: checkpoint is {saved['model']['name']}, config asks for "
-            f"model={cfg.model.name}"
+            f"architecture: checkpoint is {saved['model']['name']}, config asks "
+            f"for model={model.name}"
         )
-    if cfg.get("data") is not None and cfg.data.name != saved["data"]["name"]:
+    if data is not None and data.name != saved["data"]["name"]:
         problems.append(
-            f"dataset: checkpoint was trained on {saved['data']['name']}, config asks for "
-            f"data={cfg.data.name}"
+            f"dataset: checkpoint was trained on {saved['data']['name']}, config "
+            f"asks for data={data.name}"
         )
-    if cfg.get("model") is not None and not problems:
-        want, have = OmegaConf.to_container(cfg.model.net, resolve=True), saved["model"]["net"]
+    if model is not None and not problems:
+        want, have = OmegaConf.to_container(model.net, resolve=True), saved["model"]["net"]
         diff = [
             f"{k}={have[k]} in checkpoint vs {v}"
             for k, v in want.items()
@@ -298,8 +261,7 @@ def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
 def check_normalizer(
     ckpt: dict, normalizer: Normalizer, path: str | Path, actions: list[str] | None = None
 ) -> None:
-    """Resuming training on data whose statistics (or action labels) differ would silently
-    change the model."""
+    """Refuse data whose statistics or actions differ: resuming on them changes the model."""
     saved_actions = ckpt["motion"].get("actions")
     if actions is not None and saved_actions is not None and list(actions) != saved_actions:
         raise CheckpointError(

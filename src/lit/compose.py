@@ -1,5 +1,5 @@
-"""Compose a Hydra config in-process, as `python -m src.<name>` would, writing into a given
-folder. Used by the report command, the notebooks and the tests."""
+"""Compose a Hydra config in-process, as `python -m src.<name>` would (src.report, the
+notebooks, the tests)."""
 
 from __future__ import annotations
 
@@ -22,17 +22,14 @@ def compose_config(
     output_dir: str | Path,
     data_dir: str | Path | None = None,
 ) -> DictConfig:
-    """The config of `conf/<config_name>.yaml` with `overrides`; its run folder is output_dir.
-
-    Sets Hydra's global state so `${hydra:...}` interpolations resolve, as in a real run.
-    """
+    """The config of `conf/<config_name>.yaml` with `overrides`, run folder `output_dir`; sets
+    Hydra's global state so that `${hydra:...}` interpolations resolve, as in a real run."""
     register_resolvers()
     GlobalHydra.instance().clear()
-    extra = [f"paths.log_dir={output_dir}"]
-    if data_dir is not None:
-        extra.append(f"paths.data_dir={data_dir}")
+    extra = [] if data_dir is None else [f"paths.data_dir={data_dir}"]
+    overrides = [f"paths.log_dir={output_dir}", *extra, *overrides]
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(config_name, overrides=[*extra, *overrides], return_hydra_config=True)
+        cfg = compose(config_name, overrides=overrides, return_hydra_config=True)
     with open_dict(cfg):
         cfg.hydra.runtime.output_dir = str(output_dir)
         cfg.hydra.job.num = 0

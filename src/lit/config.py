@@ -1,12 +1,12 @@
 """The types of the entry points' configs, each declared once, and the checks of a composed config.
 
-A key of a node that Hydra instantiates (`_target_`: the trainer, the data module, the networks,
-the optimisers, the eta schedule) is typed by the constructor it configures: hydra-zen's `builds`
-turns the signature into a structured config. Every other key is typed by the dataclasses below.
-OmegaConf checks a config against both, before anything runs. What no type says is checked here
-by name: the ranges of the keys no constructor reads (`within`), and a few combinations.
+A key of a node Hydra instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's
+`builds`); every other key by the dataclasses below. OmegaConf checks a config against both before
+anything runs; the ranges of keys no constructor reads (`within`) and a few combinations are
+checked here.
 """
 
+import contextlib
 import dataclasses
 import difflib
 import functools
@@ -147,8 +147,8 @@ BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 class _Builds(BuildsFn):
-    """hydra-zen's `builds`, reading `int | None` as it reads Optional[int], and a union without
-    the alternatives a config cannot hold (`float | Tensor` is a float)."""
+    """hydra-zen's `builds`, reading `int | None` as Optional[int], and a union without what a
+    config cannot hold (`float | Tensor` is a float)."""
 
     @classmethod
     def _sanitized_type(cls, type_, **kwargs):
@@ -161,36 +161,29 @@ class _Builds(BuildsFn):
 
 @functools.cache
 def constructor_schema(target: str, partial: bool = False) -> type:
-    """The structured config of the class `target`: its constructor's arguments, with their
-    types; through **kwargs, also those of the base class it passes them to. `partial`: for a
-    node with `_partial_`, whose missing arguments come later."""
+    """The structured config of the constructor of `target` (through **kwargs, with its base
+    class's arguments). `partial`: a node with `_partial_`, whose missing arguments come later."""
     cls = hydra.utils.get_class(target)
-    params = inspect.signature(cls).parameters.values()
-    base = cls.__base__
-    if any(p.kind is p.VAR_KEYWORD for p in params) and base not in (None, object):
-        bases = (constructor_schema(f"{base.__module__}.{base.__qualname__}"),)
-    else:
-        bases = ()
+    base, params = cls.__base__, inspect.signature(cls).parameters.values()
+    inherits = base not in (None, object) and any(p.kind is p.VAR_KEYWORD for p in params)
+    bases = (constructor_schema(f"{base.__module__}.{base.__qualname__}"),) if inherits else ()
     return _Builds.builds(
         cls, populate_full_signature=True, zen_partial=partial, builds_bases=bases
     )
 
 
-# ------------------------------------------------------------------------------ the checks
 def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
-    """check_types, then the combinations that cannot work. `resuming`: a resume, which keeps
-    its run's val_every."""
+    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
     check_types(cfg, entry)
     _check_combinations(cfg, entry, resuming)
 
 
 def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
-    nothing reads. `entry`: train, eval, visualize, export_windows."""
+    nothing reads. `entry`: a key of SCHEMAS."""
     plain, raw = _resolved(cfg), OmegaConf.to_container(cfg, resolve=False)
     _check_node(plain, SCHEMAS[entry], "")
-    # The values the user wrote first, copies (${model.net.kernel}) after: a wrong value is
-    # named where it was set.
+    # Values as written first, copies (${model.net.kernel}) after: named where they were set.
     for copies in (False, True):
         for path, node in _targets(plain, ""):
             try:
@@ -254,9 +247,9 @@ def _words(node: Any) -> str:
 
 
 def _check_as_written(plain: Any, typed: Any, path: str) -> None:
-    """OmegaConf converts 'no' to false and 1 to true as it checks, but the code reads the
-    values as written: each must already have its type (a whole number stands for a number),
-    and no untyped value may be a word YAML takes for a boolean."""
+    """OmegaConf converts 'no' to false and 1 to true as it checks, but the code reads values as
+    written: each must have its type already (a whole number stands for a number), and no
+    untyped value may be a word YAML takes for a boolean."""
     if isinstance(plain, dict) and isinstance(typed, DictConfig):
         for key, value in plain.items():
             if not (isinstance(value, dict) and "_target_" in value):  # checked on its own
@@ -301,19 +294,15 @@ def _check_ranges(plain: dict, schema: type, path: str) -> None:
 
 
 def _resolved(node: DictConfig) -> dict:
-    """`node` as plain values, interpolations resolved; Hydra's own node and the keys that point
-    at state not set up yet (the run folder) are left out: they are not the user's text."""
+    """`node` as plain values, resolved, without Hydra's node and the keys that point at state
+    not set up yet (the run folder): they are not the user's text."""
     out = {}
-    for key in node:
-        if key == "hydra":
-            continue
-        try:
+    for key in (k for k in node if k != "hydra"):
+        with contextlib.suppress(Exception):  # any failure to resolve
             value = node[key]
             if isinstance(value, ListConfig):
                 value = OmegaConf.to_container(value, resolve=True)
-        except Exception:  # noqa: BLE001 (any failure to resolve)
-            continue
-        out[key] = _resolved(value) if isinstance(value, DictConfig) else value
+            out[key] = _resolved(value) if isinstance(value, DictConfig) else value
     return out
 
 
@@ -326,7 +315,6 @@ def _targets(tree: dict, path: str):
             yield from _targets(value, here)
 
 
-# ------------------------------------------------------------------ what no type can say
 def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
     check_accelerator(cfg)
     if entry != "train":
@@ -363,9 +351,8 @@ def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
 
 
 def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
-    """Training runs whole validation periods: `iterations` must be a multiple of `val_every`,
-    or the run would silently train more (or fewer) iterations than asked. A resume keeps its
-    run's val_every: only the lengths are suggested."""
+    """`iterations` must be a multiple of `val_every` (training runs whole validation periods),
+    or the run would train another length than asked. A resume keeps its val_every."""
     iterations, every = int(cfg.iterations), int(cfg.val_every)
     if iterations % every == 0:
         return
@@ -380,8 +367,8 @@ def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
 
 
 def check_accelerator(cfg: DictConfig) -> None:
-    """A GPU asked for where torch finds none: Lightning's own error ("No supported gpu backend
-    found!") comes as a traceback, after the data has loaded."""
+    """A GPU asked for where torch finds none (Lightning says so in a traceback, after the data
+    has loaded)."""
     from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
 
     accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)

@@ -1,11 +1,8 @@
-"""Schedules for the sampling parameter eta of Li et al. eq. (10).
+"""Schedules for the sampling parameter eta of Li et al. eq. (10): the weight of the model's own
+prediction in the frames fed back to the decoder in training (1: predictions only, Martinez's
+"sampling-based loss"; 0: teacher forcing). Evaluation always decodes with eta = 1.
 
-eta is the weight of the model's own prediction in the frames fed back to the decoder during
-training: eta = 1 feeds predictions only (Martinez's "sampling-based loss"), eta = 0 feeds ground
-truth only (teacher forcing). Evaluation always decodes with eta = 1 whatever the schedule.
-
-A schedule is a pure function of the optimiser step, so resuming from a checkpoint at step s
-continues the schedule exactly where it stopped.
+A schedule is a pure function of the iteration, so a resume continues it exactly.
 """
 
 from __future__ import annotations
@@ -30,26 +27,21 @@ class Constant:
 
 
 class LinearRamp:
-    """eta moves linearly from `start` to `end` over `steps` optimiser steps, then stays."""
+    """eta moves linearly from `start` to `end` over `steps` iterations, then stays."""
 
     def __init__(self, start: float = 0.0, end: float = 1.0, steps: int = 20000):
-        self.start = _check_unit("start", start)
-        self.end = _check_unit("end", end)
+        self.start, self.end = _check_unit("start", start), _check_unit("end", end)
         if steps <= 0:
             raise ValueError(f"sampling.steps={steps} must be a positive number of steps.")
         self.steps = int(steps)
 
     def __call__(self, step: int) -> float:
-        frac = min(max(step, 0) / self.steps, 1.0)
-        return self.start + frac * (self.end - self.start)
+        return self.start + min(max(step, 0) / self.steps, 1.0) * (self.end - self.start)
 
 
 class InverseSigmoid:
     """Scheduled sampling (Bengio et al. 2015): the teacher-forcing probability decays as
-    k / (k + exp(step / k)), so eta = 1 - k / (k + exp(step / k)) rises from about 0 to 1.
-
-    `k` sets the speed: eta crosses 0.5 at step k * ln(k).
-    """
+    k / (k + exp(step / k)), so eta rises from about 0 to 1, crossing 0.5 at step k * ln(k)."""
 
     def __init__(self, k: float = 1000.0):
         if k < 1.0:
@@ -58,6 +50,4 @@ class InverseSigmoid:
 
     def __call__(self, step: int) -> float:
         x = max(step, 0) / self.k
-        if x > 700:  # exp overflows; the limit is exactly 1
-            return 1.0
-        return 1.0 - self.k / (self.k + math.exp(x))
+        return 1.0 if x > 700 else 1.0 - self.k / (self.k + math.exp(x))  # exp overflows past 700

@@ -1,6 +1,5 @@
-"""Turns composed Hydra configs, and checkpoints, into datamodules and LightningModules. The
-entry points (train, eval, visualize, report) and MotionForecaster only call these functions;
-checkpoint files are written, read and checked in src/lit/checkpoints.py."""
+"""Composed Hydra configs, and checkpoints, into datamodules and LightningModules: the entry
+points and MotionForecaster build through these functions alone."""
 
 from __future__ import annotations
 
@@ -27,29 +26,21 @@ __all__ = ["ConfigError", "PROJECT_ROOT"]  # and the builders below
 
 
 def git_commit() -> str:
+    def git(*args: str) -> str:
+        run = subprocess.run(["git", *args], cwd=PROJECT_ROOT, capture_output=True, text=True)
+        run.check_returncode()
+        return run.stdout.strip()
+
     try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=PROJECT_ROOT,
-            capture_output=True,
-            text=True,
-            check=True,
-        )
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=PROJECT_ROOT,
-            capture_output=True,
-            text=True,
-        ).stdout.strip()
-        return out.stdout.strip() + ("-dirty" if dirty else "")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+        return git("rev-parse", "--short", "HEAD") + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
 
 def _instantiate(node, **kwargs):
-    """hydra.utils.instantiate, but a bad value reaches the user as the project's own one-line
-    error: Hydra wraps whatever the constructor raised in an InstantiationException, which the
-    CLI would print as a traceback."""
+    """hydra.utils.instantiate; what the constructor refuses is a one-line error, not a
+    traceback of Hydra's InstantiationException."""
     try:
         return hydra.utils.instantiate(node, **kwargs)
     except InstantiationException as err:
@@ -63,16 +54,14 @@ def _instantiate(node, **kwargs):
 
 
 def build_trainer(trainer_cfg: DictConfig, **kwargs):
-    """The Lightning Trainer of `trainer_cfg` (kwargs: what only the entry point knows); a
-    setting Lightning refuses (devices=0, an unknown strategy) is a one-line ConfigError."""
+    """The Trainer of `trainer_cfg` (+ kwargs); a setting Lightning refuses is a ConfigError."""
     return _instantiate(trainer_cfg, **kwargs)
 
 
 def build_parts(cfg: DictConfig) -> None:
-    """Build, and drop, what a training run's constructors check before any data is read: the
-    data module, the eta schedule and the optimisers (on a stand-in parameter). Their own
-    refusals (eta outside [0, 1], a negative learning rate, batch_size=0) so come before the
-    run folder is made, as one line."""
+    """Build, and drop, the data module, eta schedule and optimisers (on a stand-in parameter):
+    their constructors' refusals (eta outside [0, 1], a negative learning rate, batch_size=0)
+    so come before the run folder is made and any data is read."""
     build_datamodule(cfg.data)
     if cfg.get("sampling"):
         _instantiate(cfg.sampling)
@@ -86,7 +75,6 @@ def build_parts(cfg: DictConfig) -> None:
                 raise ConfigError(f"{key}: {err}") from None
 
 
-# ---------------------------------------------------------------------------- data
 def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None):
     kwargs = {k: v for k, v in data_cfg.items() if k != "name"}
     dm = _instantiate(kwargs, _convert_="all")
@@ -95,24 +83,18 @@ def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None)
     return dm
 
 
-# ---------------------------------------------------------------------------- models
 def _instantiate_with_data(node: DictConfig, dm, **extra):
-    """Instantiate a network config, filling in what only the data knows (pose dimension,
-    number of actions, the convolution padding of protocol §6.7, the normaliser)."""
-    target = hydra.utils.get_class(node._target_)
-    accepted = inspect.signature(target).parameters
-    kwargs: dict[str, Any] = {"pose_dim": dm.pose_dim, "num_actions": dm.num_actions}
-    if "normalizer" in accepted:
+    """A network, with what only the data knows (padding: protocol §6.7)."""
+    kwargs: dict[str, Any] = {"pose_dim": dm.pose_dim, "num_actions": dm.num_actions, **extra}
+    if "normalizer" in inspect.signature(hydra.utils.get_class(node._target_)).parameters:
         kwargs["normalizer"] = dm.normalizer
     if node.get("padding") == "auto":
         kwargs["padding"] = dm.conv_padding
-    kwargs.update(extra)
     return _instantiate(node, **kwargs, _convert_="all")
 
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
-    """The LightningModule for `cfg.model` (+ `cfg.adversarial`, `cfg.sampling`) on `dm`, a
-    set-up datamodule or what load_trained reads of a checkpoint."""
+    """The LightningModule of `cfg` on `dm`, a set-up datamodule or load_trained's stand-in."""
     net = _instantiate_with_data(cfg.model.net, dm)
     trainable = any(p.requires_grad for p in net.parameters())
     model, adv, compile_ = cfg.model, cfg.get("adversarial") or {}, cfg.get("compile") or {}
@@ -146,14 +128,11 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
     )
 
 
-# ---------------------------------------------------------------------------- trained models
 def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredictor:
-    """The one way to load a trained model: checkpoint path -> its MotionPredictor in eval mode,
-    with its weights, normaliser (`.normalizer`) and saved config (`.run_info["config"]`),
-    rebuilt from the checkpoint alone (no data file is read).
-
-    `cfg`, an evaluation config: refuse a checkpoint whose model or data differ from its
-    model= / data=, and take its metric settings (`metrics.dim_rule`)."""
+    """The one way to load a trained model: its MotionPredictor in eval mode with weights,
+    normaliser and saved config (`.run_info["config"]`), from the checkpoint alone (no data
+    file is read). `cfg`, an evaluation config: refuse a checkpoint whose model or data differ
+    from its model= / data=, and take its `metrics.dim_rule`."""
     ckpt = read_checkpoint(path)
     if cfg is not None:
         check_compatible(ckpt, cfg, path)
@@ -165,8 +144,8 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     normalizer.load_state_dict(
         {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
     )
-    # What build_module reads of a set-up datamodule: a checkpoint holds it too, so no data
-    # file is read (the class attributes of the data config's datamodule, the saved lengths).
+    # What build_module reads of a set-up datamodule: the data module class's attributes and
+    # the saved lengths.
     data, actions = hydra.utils.get_class(saved.data._target_), list(motion["actions"])
     facts = SimpleNamespace(
         normalizer=normalizer,
@@ -196,8 +175,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
 
 
 def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normalizer=None):
-    """The set-up datamodule of the test windows of `data_cfg` (default: `cfg.data`) under
-    `cfg.protocol` (default: the data config's own, srnn)."""
+    """The datamodule of the test windows of `data_cfg` (or `cfg.data`), set up."""
     if data_cfg is None and cfg.get("data") is None:
         raise ConfigError(
             "say whose test windows: data=h36m|cmu|synthetic (and protocol=srnn|random|strided)"
@@ -212,9 +190,8 @@ def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normali
 
 
 def build_for_evaluation(cfg: DictConfig):
-    """(datamodule of the test windows, module) for src.eval and src.visualize: the trained
-    model of `cfg.ckpt_path` on its own data config, or the baseline of `cfg.model` on
-    `cfg.data`. `module.run_info["config"]` names the model and data in both cases."""
+    """(test windows' datamodule, module) of src.eval and src.visualize: the trained model of
+    `cfg.ckpt_path` on its own data config, or the baseline `cfg.model` on `cfg.data`."""
     if cfg.ckpt_path:
         module = load_trained(cfg.ckpt_path, cfg)
         data_cfg = OmegaConf.create(module.run_info["config"]["data"])

@@ -1,5 +1,5 @@
-"""Logs a frame strip of one fixed evaluation window to TensorBoard after every validation, so
-a run shows how its predicted motion evolves (TensorBoard's Images tab, tag `media/...`)."""
+"""A frame strip of one evaluation window in TensorBoard (Images, `media/...`) after
+validations: how a run's predicted motion evolves."""
 
 from __future__ import annotations
 
@@ -12,11 +12,9 @@ from src.plots import frame_strip, window_rows
 
 
 class FrameStripLogger(Callback):
-    """Draw prediction, ground truth and zero-velocity of the first evaluation window (the
-    first evaluable action's) every `every_n_validations` validations.
-
-    Cheap by design: one window, one forward pass, one figure. Skipped during the sanity check,
-    under fast_dev_run, and when the logger cannot take figures (no TensorBoard)."""
+    """Prediction, ground truth and zero-velocity of the first evaluation window every
+    `every_n_validations` validations: one forward pass, one figure. Not in the sanity check,
+    under fast_dev_run, or without a logger that takes figures."""
 
     def __init__(self, every_n_validations: int = 1):
         if every_n_validations < 1:
@@ -26,7 +24,7 @@ class FrameStripLogger(Callback):
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> list[FrameStripLogger]:
-        """[logger] for `media_every: n` (n >= 1) in the train config, [] for 0 or absent."""
+        """[logger] for `media_every: n` (n >= 1), [] for 0 or absent."""
         every = int(cfg.get("media_every", 0) or 0)
         return [cls(every_n_validations=every)] if every > 0 else []
 

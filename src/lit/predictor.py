@@ -1,13 +1,11 @@
-"""The LightningModule shared by every architecture and baseline.
+"""The LightningModule of every architecture and baseline.
 
-One training iteration of Li et al. (protocol §6.6), optimised by hand: the discriminator
-objective, eq. (8), on one batch, then the generator objective, eq. (9) = reconstruction (7) +
-lambda_2 * L2(weights) + lambda_adv * adversarial term, on a *different* batch; without a
-discriminator the generator's step alone ((7) + L2 for the convolutional model, Martinez et
-al.'s loss for the GRU). Given to any Trainer with its datamodule it trains as src.train does:
-it sets the draws per iteration, stops at `iterations`, and global_step counts iterations.
-Validation decodes fully autoregressively (eta = 1, dropout off) on the protocol's test windows
-and reports the Euler-angle error (protocol §4) and MPJPE per action and horizon.
+A training iteration of Li et al. (protocol §6.6), optimised by hand: the discriminator's
+objective, eq. (8), on one batch, then the generator's, eq. (9) = reconstruction (7) +
+lambda_2 * L2(weights) + lambda_adv * adversarial term, on another batch (without a
+discriminator, the generator's step alone). Any Trainer trains it as src.train does: it sets
+the draws per iteration, stops at `iterations`, and global_step counts iterations. Validation
+decodes autoregressively (eta = 1) and reports Euler error (protocol §4) and MPJPE.
 """
 
 from __future__ import annotations
@@ -31,27 +29,25 @@ from src.metrics.mpjpe import MPJPE
 
 
 class NonFiniteLossError(RuntimeError):
-    """Training produced a NaN or inf loss."""
+    """Training produced a NaN or inf loss or weight."""
 
 
 def l2_penalty(module: nn.Module) -> Tensor:
-    """TF's l2_regularizer as used by the reference: sum(w^2) / 2 over weight tensors, biases
-    excluded (protocol §6.6). A value for the logs: its gradient comes from add_l2_gradient_."""
+    """TF's l2_regularizer as the reference uses it: sum(w^2) / 2 over weight tensors, biases
+    excluded (protocol §6.6). For the logs: its gradient comes from add_l2_gradient_."""
     with torch.no_grad():
         norms = [torch.linalg.vector_norm(p) for p in module.parameters() if p.ndim > 1]
         return torch.stack(norms).square().sum() / 2 if norms else torch.zeros(())
 
 
 def _host(value: float) -> Tensor:
-    """A logged number as a CPU tensor: Lightning turns a Python float into a tensor on the
-    module's device, on a GPU a blocking copy (a host sync) per number per iteration."""
+    """A logged number as a CPU tensor: Lightning copies a float to the device (a host sync)."""
     return torch.tensor(value, dtype=torch.float32)
 
 
 def add_l2_gradient_(module: nn.Module, weight: float) -> None:
-    """Add the gradient of weight * l2_penalty(module), weight * w, to every weight's .grad,
-    after backward and before clipping and the step, where autograd would have put it. Not
-    backpropagated: that graph over the 16M weights took 85 ms of a 1.16 s conv_s2s +
+    """Add weight * w, the gradient of weight * l2_penalty(module), to every weight's .grad
+    after backward. Not backpropagated: that graph took 85 ms of a 1.16 s conv_s2s +
     adversarial CPU step; this takes 3 ms (tests/test_train.py compares the two)."""
     for p in module.parameters():
         if p.ndim > 1 and p.grad is not None:
@@ -99,13 +95,12 @@ class MotionPredictor(L.LightningModule):
         self.eta_schedule, self.reference_fake_slot = eta_schedule, reference_fake_slot
         self.run_info = run_info or {}
         self.iterations = iterations  # where a fit stops (None: the Trainer's limits alone)
-        # torch.compile the two objectives of a training iteration (True; "auto": on a CUDA
-        # device only); off by default, see conf/train.yaml.
+        # torch.compile the two objectives (True; "auto": on a CUDA device only).
         self.compile_step, self.compile_mode = compile, compile_mode
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
         self._host_iteration: int | None = None  # see host_iteration
-        # Training iterations done, saved in the state dict so eta and logging resume exactly.
+        # Iterations done, in the state dict so that eta and logging resume exactly.
         self.register_buffer("iteration", torch.zeros((), dtype=torch.long))
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
 
@@ -125,7 +120,6 @@ class MotionPredictor(L.LightningModule):
     def trainable(self) -> bool:
         return any(p.requires_grad for p in self.net.parameters())
 
-    # ---------------------------------------------------------------- optimisation
     def configure_optimizers(self):
         if not self.trainable:
             raise RuntimeError(
@@ -135,42 +129,38 @@ class MotionPredictor(L.LightningModule):
         optimizers = [self.optimizer_factory(params=self.net.parameters())]
         if self.adversarial:
             optimizers.append(self.d_optimizer_factory(params=self.discriminator.parameters()))
-        # lr x gamma every `lr_decay_every` iterations (protocol §5, §6.6); stepped once per
-        # iteration by hand because optimisation is manual.
+        # lr x gamma every `lr_decay_every` iterations (protocol §5, §6.6), stepped by hand.
         schedulers = [
             torch.optim.lr_scheduler.StepLR(o, self.lr_decay_every, self.lr_decay_gamma)
             for o in optimizers
         ]
         return optimizers, schedulers
 
-    def on_train_start(self) -> None:  # after a resume restored `iteration`; on the fit's device
+    def on_train_start(self) -> None:  # after a resume restored `iteration`
         self._host_iteration, self._compiled = None, None
 
     def on_fit_start(self) -> None:
-        # add_l2_gradient_ adds to the gradients after backward, so they must not be scaled.
+        # add_l2_gradient_ adds to the gradients after backward: they must not be scaled.
         if getattr(self.trainer.precision_plugin, "scaler", None) is not None:
             raise ValueError(
                 "trainer.precision=16-mixed scales the gradients, which the L2 term of eq. (9) "
                 "is added to unscaled; use trainer.precision=32 (default) or bf16-mixed"
             )
-        # The module owns its draws: with the regulariser each iteration takes two batches,
-        # one for D and one for G (protocol 6.6), and a resumed fit (its `iteration` restored
-        # by now, before the training loader is made) continues its epoch's batches.
+        # The module owns its draws: with the regulariser two batches per iteration, for D and
+        # G (protocol 6.6); a resumed fit (`iteration` restored by now) continues its epoch.
         dm = self.trainer.datamodule
         if hasattr(dm, "draws_per_step"):
             dm.draws_per_step = 2 if self.adversarial else 1
             dm.resume_iteration = int(self.iteration)
 
     def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
-        # Stop at `iterations`, after this iteration's validation (Lightning runs it when
-        # should_stop is set) and the checkpoint written at the epoch's end.
+        # Lightning still runs this iteration's validation and the epoch end's checkpoint.
         if self.iterations is not None and self.host_iteration >= self.iterations:
             self.trainer.should_stop = True
 
     @property
     def host_iteration(self) -> int:
-        """`iteration` as a Python int: read from the device once per fit (on a GPU a read is
-        a host sync), then counted on the host."""
+        """`iteration`, read from the device once per fit (a host sync), then counted here."""
         if self._host_iteration is None:
             self._host_iteration = int(self.iteration)
         return self._host_iteration
@@ -185,11 +175,9 @@ class MotionPredictor(L.LightningModule):
         return eta
 
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
-        """The 75-frame sequence the discriminator judges: the observed frames, then the ground
-        truth `future` (the real sample) or the prediction `fake`. The reference code put the
-        first ground-truth future frame in the slot of the last observed frame of the fake
-        sample only (protocol §6.5: w[0..48], w[50], predictions; the real sample is w[0..74]);
-        `reference_fake_slot` reproduces that for comparison."""
+        """The 75 frames the discriminator judges: observed, then the ground truth `future` (real)
+        or the prediction `fake`. `reference_fake_slot`: the reference's fake sample, with the
+        first future frame in the last observed slot (protocol §6.5: w[0..48], w[50], ...)."""
         if fake is None:
             return torch.cat([observed, future], dim=1)
         if self.reference_fake_slot:
@@ -199,8 +187,7 @@ class MotionPredictor(L.LightningModule):
     def _d_objective(
         self, observed: Tensor, future: Tensor, action: Tensor, eta: float | Tensor
     ) -> tuple[Tensor, Tensor]:
-        """eq. (8), -log D(real) - log(1 - D(fake)), on one batch; also the mean logit of the
-        real sequences (logged)."""
+        """eq. (8), -log D(real) - log(1 - D(fake)); and the mean logit of the real ones."""
         with torch.no_grad():
             fake = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
         # Real and fake in one call: one weight gradient per layer instead of two summed.
@@ -215,8 +202,7 @@ class MotionPredictor(L.LightningModule):
     def _g_objective(
         self, observed: Tensor, future: Tensor, action: Tensor, eta: float | Tensor
     ) -> tuple[Tensor, Tensor, Tensor]:
-        """eq. (9) without its L2 term (added as a gradient by training_step), and its parts:
-        (loss to backpropagate, reconstruction (7), adversarial term or 0)."""
+        """eq. (9) but its L2 term (a gradient): (loss, reconstruction (7), adversarial or 0)."""
         pred = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
         loss_recon = F.mse_loss(pred, future)  # eq. (7), mean over batch x T x D as the reference
         if not self.adversarial:
@@ -227,21 +213,18 @@ class MotionPredictor(L.LightningModule):
         return loss_recon + self.lambda_adv * loss_adv, loss_recon.detach(), loss_adv.detach()
 
     def _objectives(self):
-        """(discriminator, generator) objective functions: eager, or compiled (see `compile`)."""
+        """(compiled?, discriminator objective, generator objective)."""
         if self._compiled is None:
-            # auto: not under DDP (compiling a bound method of the inner module: untested).
+            # auto: on one CUDA device (compiling the inner module of DDP is untested).
             single = self._trainer is None or self.trainer.world_size == 1
-            on = self.compile_step is True or (
-                self.compile_step == "auto" and self.device.type == "cuda" and single
-            )
+            auto = self.device.type == "cuda" and single
+            on = self.compile_step is True or (self.compile_step == "auto" and auto)
             d, g = self._d_objective, self._g_objective
             if on:
-                # A fresh compiler state per fit: torch keeps the graphs of every earlier fit
-                # in the process under the same two functions and, with fullgraph, refuses
-                # their 9th (recompile_limit): a sweep of model structures would stop there.
+                # A fresh compiler state per fit: torch refuses the 9th graph of a function
+                # (recompile_limit), and a sweep's earlier fits would count.
                 torch.compiler.reset()
-                # One static graph per objective: reduce-overhead captures each (forward and
-                # backward) in a CUDA graph, a few launches instead of thousands of kernels.
+                # reduce-overhead captures each objective, forward and backward, in a CUDA graph.
                 d = torch.compile(d, mode=self.compile_mode, fullgraph=True)
                 g = torch.compile(g, mode=self.compile_mode, fullgraph=True)
             self._compiled = (on, d, g)
@@ -265,8 +248,7 @@ class MotionPredictor(L.LightningModule):
         d_losses: dict[str, Tensor] = {}
 
         if self.adversarial:
-            # The discriminator and generator see different random batches (protocol §6.6):
-            # each iteration's batch holds two draws (on_fit_start).
+            # D and G see different batches (protocol §6.6): two draws (on_fit_start).
             (obs_d, obs_g), (fut_d, fut_g), (act_d, act_g) = (
                 t.chunk(2) for t in (observed, future, action)
             )
@@ -278,13 +260,11 @@ class MotionPredictor(L.LightningModule):
             opt_d.zero_grad()
             self.manual_backward(loss_d_adv)
             add_l2_gradient_(self.discriminator, self.lambda_2_d)
-            # The torch optimiser itself: Lightning counts every step of its wrapper as a
-            # global step, so global_step (max_steps, logging) would count 2 per iteration.
+            # The torch optimiser: Lightning counts each step of its wrapper in global_step.
             getattr(opt_d, "optimizer", opt_d).step()
             self.untoggle_optimizer(opt_d)
             # Clones: a CUDA graph's outputs are overwritten by its next replay.
-            logs["train/loss_d"] = loss_d.clone()
-            logs["train/d_real"] = d_real.clone()
+            logs |= {"train/loss_d": loss_d.clone(), "train/d_real": d_real.clone()}
             observed, future, action = obs_g, fut_g, act_g
 
         opt_g = optimizers[0]
@@ -294,8 +274,7 @@ class MotionPredictor(L.LightningModule):
         loss_recon = loss_recon.clone()
         loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else loss_recon.new_zeros(())
         loss_g = loss_backprop.detach() + self.lambda_2 * loss_l2
-        # Once per iteration (a host sync), before G's step. A non-finite loss_d has moved D
-        # already, but nothing is saved after this error, which names loss_d alone.
+        # Once per iteration (a host sync), before G's step; nothing is saved after it.
         self._check_finite(d_losses, {"loss_g": loss_g, "loss_recon": loss_recon})
         opt_g.zero_grad()
         self.manual_backward(loss_backprop)
@@ -319,51 +298,48 @@ class MotionPredictor(L.LightningModule):
         if self.adversarial:
             logs["train/lr_d"] = _host(optimizers[1].param_groups[0]["lr"])
         self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
-        # Lightning reads the progress bar's numbers at every batch, a host sync each on a GPU:
-        # a host number, refreshed on the iterations whose losses are logged (read then anyway).
+        # The bar's number, on the host: Lightning reads it at every batch (a sync on a GPU).
         every = self._trainer.log_every_n_steps if self._trainer is not None else 0
         if every and self.host_iteration % every == 0:
             self.log("train/loss_recon_bar", _host(loss_recon.item()), prog_bar=True, logger=False)
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
 
-    def _recent(self) -> list[dict[str, float]]:
-        return [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
+    def _stop(self, what: str) -> None:
+        """Stop, naming the last finite losses and the last good checkpoint (src.train's)."""
+        recent = [{k: round(float(v), 6) for k, v in d.items()} for d in self._recent_losses]
+        path = getattr(self, "last_checkpoint", None)
+        note = f"The last good checkpoint is {path}; resume from it with ckpt_path={path}."
+        if path is None or not Path(path).is_file():
+            note = "No checkpoint was written before this point."
+        raise NonFiniteLossError(
+            f"{what}. Last finite losses (oldest first): {recent or 'none yet'}. {note} Lower "
+            "the learning rate or check the data."
+        )
 
     def _check_finite(self, *objectives: dict[str, Tensor]) -> None:
-        """Stop on a non-finite loss, naming those of the first objective that has one (the
-        discriminator's makes the generator's non-finite too)."""
-        # One host sync for all losses (each is a stall of the launch queue on a GPU).
+        """Stop on a non-finite loss, naming the first objective's (D's makes G's non-finite)."""
         losses = [v.detach() for objective in objectives for v in objective.values()]
         if bool(torch.isfinite(torch.stack(losses)).all()):
             return
         for objective in objectives:
             bad = {k: v.item() for k, v in objective.items() if not torch.isfinite(v)}
             if bad:
-                raise NonFiniteLossError(
-                    f"non-finite loss at training iteration {self.host_iteration}: {bad}. "
-                    f"Last finite losses (oldest first): {self._recent() or 'none yet'}. "
-                    f"{self._last_checkpoint_note()} Lower the learning rate or check the data."
-                )
+                self._stop(f"non-finite loss at training iteration {self.host_iteration}: {bad}")
 
-    # ---------------------------------------------------------------- evaluation
     def forward(self, observed: Tensor, future_len: int, action: Tensor | None = None) -> Tensor:
-        """Fully autoregressive prediction in normalised space (eta = 1, no ground truth)."""
+        """Autoregressive prediction in normalised space (eta = 1, no ground truth)."""
         return self.net(observed, future_len, action=action)
 
     def predict_windows(self, batch: dict[str, Tensor]) -> Tensor:
-        """The unnormalised prediction (B, T, F) for a batch of test windows: the network's,
-        fully autoregressive. src.scoring puts a file's predictions in its place."""
+        """The unnormalised prediction (B, T, F) of test windows (src.scoring swaps in a file's)."""
         pred = self(batch["observed"], batch["future"].shape[1], action=batch["action"])
         return self.normalizer.unnormalize(pred)
 
     def validation_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
-        # Always in float32: under trainer.precision=bf16-mixed, Lightning's autocast would run
-        # the prediction and the metrics' rotations in bfloat16 and move reported errors by
-        # up to half their printed precision (0.01 rad).
+        # float32 always: bf16-mixed autocast would move the errors by up to 0.01 rad.
         with torch.autocast(batch["future"].device.type, enabled=False):
             pred_full = self.predict_windows(batch)
-            # Ground truth goes through the same unnormalisation as the prediction, as in the
-            # reference code (protocol §2.2, §4.1).
+            # Ground truth unnormalised as the prediction, as the reference (protocol §4.1).
             gt_full = self.normalizer.unnormalize(batch["future"])
             gt_obs_full = self.normalizer.unnormalize(batch["observed"])
             self.euler.update(pred_full, gt_full, batch["action"], gt_observed_full=gt_obs_full)
@@ -390,34 +366,24 @@ class MotionPredictor(L.LightningModule):
             idx = list(self.horizons.values())
             logs[f"{stage}/euler_avg"] = euler[present][:, idx].mean().item()
             logs[f"{stage}/mpjpe_avg"] = mpjpe[present][:, idx].mean().item()
-        # Under DDP every rank already holds the same global values (the metrics all-reduce
-        # their sums in compute()); sync_dist averages identical numbers, a no-op that keeps
+        # Every DDP rank holds the same values (compute() all-reduces): sync_dist only keeps
         # Lightning from warning once per key.
         self.log_dict(logs, sync_dist=True)
 
     def on_test_epoch_end(self) -> None:
         self.on_validation_epoch_end("test")
 
-    # ---------------------------------------------------------------- checkpoints
     def _check_finite_weights(self) -> None:
-        """A step can turn the weights NaN after a finite loss, which the loss check sees only
-        at the next iteration: checked before each validation and checkpoint write, so the
-        previous good last.ckpt is kept."""
+        """A step can make the weights NaN after a finite loss: checked before each validation
+        and checkpoint write, so that the previous good last.ckpt is kept."""
         nets = [self.net] if self.discriminator is None else [self.net, self.discriminator]
         bad = [n for net in nets for n, p in net.named_parameters() if not p.isfinite().all()]
         if bad:
-            raise NonFiniteLossError(
+            names = ", ".join(bad[:3]) + (", ..." if len(bad) > 3 else "")
+            self._stop(
                 f"non-finite weights after training iteration {int(self.iteration)} "
-                f"({', '.join(bad[:3])}{', ...' if len(bad) > 3 else ''}); no checkpoint was "
-                f"written from them. {self._last_checkpoint_note()} "
-                f"Last finite losses (oldest first): {self._recent() or 'none yet'}."
+                f"({names}); no checkpoint was written from them"
             )
-
-    def _last_checkpoint_note(self) -> str:
-        path = getattr(self, "last_checkpoint", None)
-        if path is None or not Path(path).is_file():
-            return "No checkpoint was written before this point."
-        return f"The last good checkpoint is {path}; resume from it with ckpt_path={path}."
 
     def on_validation_start(self) -> None:
         self._check_finite_weights()
@@ -426,8 +392,7 @@ class MotionPredictor(L.LightningModule):
         self._check_finite_weights()
         # What rebuilds the model without its data (factory.load_trained): config, actions.
         checkpoint["motion"] = {**self.run_info, "actions": self.actions}
-        # The random state (dropout masks) so that a resumed run continues as it would have:
-        # CPU generator always, every CUDA device's generator when CUDA is in use.
+        # The random state (dropout masks): a resumed run continues as it would have.
         checkpoint["rng"] = {"torch": torch.get_rng_state()}
         if torch.cuda.is_available() and torch.cuda.is_initialized():
             checkpoint["rng"]["cuda"] = torch.cuda.get_rng_state_all()
@@ -436,14 +401,12 @@ class MotionPredictor(L.LightningModule):
         rng = checkpoint.get("rng", {})
         if "torch" in rng:
             torch.set_rng_state(rng["torch"])
-        cuda = rng.get("cuda")
-        if cuda is not None and torch.cuda.is_available():
-            count = torch.cuda.device_count()
+        cuda, count = rng.get("cuda"), torch.cuda.device_count()
+        if cuda is not None and count:
             if len(cuda) != count:
                 rank_zero_warn(
-                    f"the checkpoint holds the random state of {len(cuda)} CUDA devices, this "
-                    f"machine has {count}: dropout masks after the resume differ from an "
-                    "uninterrupted run"
+                    f"the checkpoint holds the random state of {len(cuda)} CUDA "
+                    f"devices, this machine has {count}: other dropout masks follow"
                 )
             for i, state in enumerate(cuda[:count]):
                 torch.cuda.set_rng_state(state, i)

@@ -1,10 +1,10 @@
 """A plain progress line where people look when there is no terminal.
 
 The progress bar redraws one line of a terminal; sent to a file (`> log 2>&1`, a cluster job)
-it shows nothing for minutes. `ProgressLog` writes `iteration 120/20000 (0.6%) | 0.61 it/s |
-ETA 9h03m | loss_g 0.0412 ...` every `every_s` seconds through logging: Hydra's file handler
-puts it in the run's train.log, and the console handler, through `OffTerminalOnly`
-(conf/hydra/default.yaml), on stdout only when stdout is not a terminal.
+it shows nothing for minutes. `ProgressLog` logs `iteration 120/20000 (0.6%) | 0.61 it/s |
+ETA 9h03m | loss_g 0.0412 ...` every `every_s` seconds: Hydra's file handler puts it in the
+run's train.log, and the console handler, through `OffTerminalOnly` (conf/hydra/default.yaml),
+on stdout when stdout is not a terminal.
 """
 
 from __future__ import annotations
@@ -23,16 +23,13 @@ log = logging.getLogger(__name__)
 def duration(seconds: float) -> str:
     if not math.isfinite(seconds):
         return "?"
-    seconds = int(round(seconds))
-    if seconds < 60:
-        return f"{seconds}s"
-    if seconds < 3600:
-        return f"{seconds // 60}m{seconds % 60:02d}s"
-    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+    minutes, s = divmod(int(round(seconds)), 60)
+    h, m = divmod(minutes, 60)
+    return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
 
 
 def progress_line(iteration: int, total: int, rate: float, losses: dict[str, float]) -> str:
-    """One line: where the run is, how fast it goes, when it ends, the last losses."""
+    """Where the run is, how fast it goes, when it ends, the last losses."""
     eta = (total - iteration) / rate if rate > 0 else math.inf
     parts = [
         f"iteration {iteration}/{total} ({100 * iteration / max(total, 1):.1f}%)",
@@ -46,12 +43,11 @@ def progress_line(iteration: int, total: int, rate: float, losses: dict[str, flo
 
 class ProgressLog(Callback):
     """Logs `progress_line` at most every `every_s` seconds (0: every iteration), on rank 0.
-    The rate counts the wall time since training started, validations included, so the ETA
-    is the time the run will really take."""
+    The rate counts the wall time since training started, validations included: the ETA is
+    the time the run will really take."""
 
     def __init__(self, total: int, every_s: float):
-        self.total = int(total)
-        self.every_s = float(every_s)
+        self.total, self.every_s = int(total), float(every_s)
         self._start = self._last = 0.0
         self._first = 0
 
@@ -74,15 +70,12 @@ class ProgressLog(Callback):
         log.info("%s", progress_line(iteration, self.total, rate, losses))
 
 
-def _stdout_is_terminal() -> bool:
-    try:
-        return sys.stdout.isatty()
-    except (AttributeError, ValueError):  # replaced or closed stdout
-        return False
-
-
 class OffTerminalOnly(logging.Filter):
     """For the console handler: progress lines pass only when stdout is not a terminal."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return record.name != __name__ or not _stdout_is_terminal()
+        try:
+            terminal = sys.stdout.isatty()
+        except (AttributeError, ValueError):  # replaced or closed stdout
+            terminal = False
+        return record.name != __name__ or not terminal

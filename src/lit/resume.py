@@ -1,13 +1,14 @@
 """Resumes: a resume continues a run, not a config.
 
-`restore_run` rebuilds the configuration from the run's own `config.yaml` (saved resolved,
-beside its `checkpoints/`), and the command line's overrides go on top. An override that would
-change what the run computes is refused; the length (`iterations`), where files live, logging
-and the Trainer's settings may change.
+`restore_run` takes the run's own `config.yaml` (saved resolved, beside its `checkpoints/`) and
+puts the command line's overrides on top. Where files live is this command's (FROM_HERE); the
+length, logging and the Trainer's settings may change (FREE); an override of anything else,
+which would change what the run computes, is refused naming each key with both values.
 """
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,30 +20,13 @@ from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
 from src.lit.config import ConfigError, check
 from src.lit.factory import build_parts
 
-# Where files live on this machine: always taken from this command, never from the resumed run.
-FROM_HERE = (
-    "hydra",  # in a config composed in-process (and so in the config.yaml of such a run)
-    "paths",
-    "ckpt_path",
-    "resume",
-    "trainer.default_root_dir",
-    "data.data_dir",
-    "data.archive_dir",
-    "data.archive",
-)
-# Restored from the run, but the command line may change them: they do not change what the
-# run computes (the Trainer's device settings are the user's to adapt to the machine). Not
-# `compile`: compiled dropout draws other masks than eager, so the resume would not be exact.
-FREE = (
-    "iterations",
-    "run_name",
-    "task_name",
-    "checkpoint_every",
-    "media_every",
-    "progress_every_s",
-    "trainer",
-    "data.num_workers",
-)
+# "hydra": in a config composed in-process (and so in the config.yaml of such a run).
+FROM_HERE = ("hydra", "paths", "ckpt_path", "resume", "trainer.default_root_dir",
+             "data.data_dir", "data.archive_dir", "data.archive")  # fmt: skip
+# The Trainer's device settings are the user's to adapt to the machine. Not `compile`:
+# compiled dropout draws other masks than eager, so the resume would not be exact.
+FREE = ("iterations", "run_name", "task_name", "checkpoint_every", "media_every",
+        "progress_every_s", "trainer", "data.num_workers")  # fmt: skip
 # ... except these, which change the numbers (bf16-mixed autocast): a resume keeps the run's.
 COMPUTES = ("trainer.precision",)
 _ABSENT = object()
@@ -71,10 +55,9 @@ def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
     resume, ckpt = cfg.get("resume"), cfg.get("ckpt_path")
     if not resume:
         return Path(str(ckpt)) if ckpt else None
-    path = Path(str(resume))
-    target = path
-    if path.is_dir():  # the run folder, or its checkpoints/ (named, too, by a user)
-        target = path / LAST if (path / LAST).is_file() else path / "checkpoints" / LAST
+    target = Path(str(resume))
+    if target.is_dir():  # the run folder, or its checkpoints/ (named, too, by a user)
+        target = target / LAST if (target / LAST).is_file() else target / "checkpoints" / LAST
     if ckpt and Path(str(ckpt)) != target:
         raise ConfigError(
             f"resume={resume} and ckpt_path={ckpt} name different checkpoints; give only one."
@@ -82,54 +65,28 @@ def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
     return target
 
 
-def _plain(value: Any) -> Any:
+def _get(cfg: DictConfig, key: str) -> Any:
+    """The resolved value at a dotted key, as plain Python, or _ABSENT."""
+    value = OmegaConf.select(cfg, key, default=_ABSENT)
     if isinstance(value, (DictConfig, ListConfig)):
         return OmegaConf.to_container(value, resolve=True)
     return value
 
 
-def _leaves(root: DictConfig, path: str = "") -> dict[str, Any]:
-    """Resolved leaves under `path` (dotted keys), leaving out FROM_HERE and FREE keys before
-    resolving: those may point at this machine's Hydra state, which is not set up yet."""
-    node = OmegaConf.select(root, path) if path else root
-    out: dict[str, Any] = {}
-
-    def walk(value: Any, key: str) -> None:
-        if _under(key, FROM_HERE) or _free(key):
-            return
-        if isinstance(value, dict) and value:
-            for k, v in value.items():
-                walk(v, f"{key}.{k}" if key else str(k))
-        else:
-            out[key] = _plain(OmegaConf.select(root, key))
-
-    walk(OmegaConf.to_container(node, resolve=False) if isinstance(node, DictConfig) else {}, path)
-    return out
-
-
-def _run_choices(run_dir: Path) -> dict[str, str] | None:
-    try:
-        hydra_cfg = OmegaConf.load(run_dir / ".hydra" / "hydra.yaml")
-        return dict(OmegaConf.to_container(hydra_cfg.hydra.runtime.choices))
-    except Exception:  # absent (a run started in-process) or unreadable: compare values
-        return None
-
-
-def _raw(container: dict, key: str) -> Any:
+def _raw(tree: Any, key: str) -> Any:
     """The unresolved value at a dotted key of a plain container, or _ABSENT."""
-    value: Any = container
     for part in key.split("."):
-        if not isinstance(value, dict) or part not in value:
+        if not isinstance(tree, dict) or part not in tree:
             return _ABSENT
-        value = value[part]
-    return value
+        tree = tree[part]
+    return tree
 
 
-def _set(cfg: DictConfig, key: str, value: Any) -> None:
-    OmegaConf.update(cfg, key, value, merge=False, force_add=True)
-
-
-def _remove(cfg: DictConfig, key: str) -> None:
+def _put(cfg: DictConfig, key: str, value: Any) -> None:
+    """Set a dotted key (unresolved); remove it for _ABSENT."""
+    if value is not _ABSENT:
+        OmegaConf.update(cfg, key, value, merge=False, force_add=True)
+        return
     parent, _, leaf = key.rpartition(".")
     node = OmegaConf.select(cfg, parent) if parent else cfg
     if isinstance(node, DictConfig) and leaf in node:
@@ -140,81 +97,45 @@ def _shown(value: Any) -> Any:
     return "absent" if value is _ABSENT else value
 
 
-def _group_conflicts(
-    group: str,
-    text: str,
-    cfg: DictConfig,
-    saved: DictConfig,
-    choices: dict[str, Any],
-    run_choices: dict[str, str] | None,
-) -> list[str]:
-    """A config-group option beside a resume must be the run's own: compared by name where
-    the run recorded its options (.hydra/hydra.yaml), else by the values it gives."""
-    node_key = group.replace("/", ".")
-    if _under(node_key, FROM_HERE) or _free(node_key):
-        return []
-    if run_choices is not None:
-        if run_choices.get(group) != choices.get(group):
-            return [f"{text}: the run used {group}={run_choices.get(group)}"]
-        return []
-    # A group of the global package (experiment=...) can set any key: compare them all.
-    node = node_key if isinstance(OmegaConf.select(cfg, node_key), DictConfig) else ""
-    now, then = _leaves(cfg, node), _leaves(saved, node)
-    return [
-        f"{k}: checkpoint {then[k]}, command line {_shown(now.get(k, _ABSENT))} (from {text})"
-        for k in sorted(then)
-        if now.get(k, _ABSENT) != then[k]
-    ]
-
-
-def _may_change(saved: DictConfig) -> str:
-    """FREE and COMPUTES in words ("trainer.* except trainer.precision"), so that the refusal
-    says what the code allows."""
-    words = []
-    for key in (*FREE, "paths"):
-        node = isinstance(OmegaConf.select(saved, key, default=None), DictConfig) or key == "paths"
-        kept = [k for k in COMPUTES if _under(k, (key,))]
-        words.append(f"{key}.*" if node else key)
-        if kept:
-            words[-1] += f" except {', '.join(kept)}"
-    return ", ".join(words)
-
-
-def outputs_folder_of(run_dir: Path) -> Path | None:
-    """The paths.log_dir a run folder was made under, <log_dir>/<task>/runs/<name>/<time> or
-    <log_dir>/<task>/multiruns/<time>/<job> (conf/hydra/default.yaml); None for another
-    layout."""
-    parents = run_dir.absolute().parents
-    if len(parents) > 3 and parents[1].name in ("runs", "multiruns"):
-        return parents[3]
-    return None
+def _leaves(root: DictConfig, key: str, tree: Any = _ABSENT) -> dict[str, Any]:
+    """The resolved leaves under `key` but the FROM_HERE and FREE ones (which may point at
+    Hydra state not set up yet), by dotted key."""
+    if tree is _ABSENT:
+        tree = OmegaConf.to_container(root, resolve=False)
+        tree = _raw(tree, key) if key else tree
+    if _under(key, FROM_HERE) or _free(key):
+        return {}
+    if not (isinstance(tree, dict) and tree):
+        return {key: _get(root, key)}
+    subs = {f"{key}.{sub}".lstrip("."): value for sub, value in tree.items()}
+    return {k: v for sub, value in subs.items() for k, v in _leaves(root, sub, value).items()}
 
 
 def restore_run(
     cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
 ) -> tuple[DictConfig, Resume | None]:
     """The configuration that continues the run of the checkpoint `cfg` names: the run's own,
-    with `overrides` (the command line; `choices` its config-group options) on top.
-
-    Raises CheckpointError naming every key the overrides would change, other than FREE ones.
-    Without a checkpoint to resume, returns `cfg` unchanged.
-    """
+    with `overrides` (the command line; `choices` its config-group options) on top; `cfg`
+    itself when it names none. Raises CheckpointError naming every key the overrides would
+    change but FREE ones."""
     ckpt = checkpoint_to_resume(cfg)
     if ckpt is None:
         return cfg, None
     if not ckpt.is_file():
         read_checkpoint(ckpt)  # raises the message for a missing file or a folder
     run_dir = ckpt.absolute().parent.parent
-    if (run_dir / "config.yaml").is_file():
-        saved = OmegaConf.load(run_dir / "config.yaml")
-        from_checkpoint = False
-    else:
+    from_checkpoint = not (run_dir / "config.yaml").is_file()
+    if from_checkpoint:
         # The sections the checkpoint stores; the length, schedule and seed come from the
         # command line, and an epoch stays `val_every` iterations (set below, not compared).
         saved = OmegaConf.create(read_checkpoint(ckpt)["motion"]["config"])
-        _remove(saved, "data.steps_per_epoch")
-        from_checkpoint = True
-    run_choices = _run_choices(run_dir)
+        _put(saved, "data.steps_per_epoch", _ABSENT)
+    else:
+        saved = OmegaConf.load(run_dir / "config.yaml")
+    run_choices = None
+    with contextlib.suppress(Exception):  # absent (a run started in-process): compare values
+        hydra_yaml = OmegaConf.load(run_dir / ".hydra" / "hydra.yaml")
+        run_choices = OmegaConf.to_container(hydra_yaml.hydra.runtime.choices)
 
     raw = OmegaConf.to_container(cfg, resolve=False)
     restored = OmegaConf.create(OmegaConf.to_container(saved, resolve=False))
@@ -222,61 +143,59 @@ def restore_run(
         if key not in restored:
             restored[key] = value
     for key in FROM_HERE:  # unresolved: they point at this run's folder, not yet created
-        value = _raw(raw, key)
-        if value is not _ABSENT:
-            _set(restored, key, value)
-        elif key == "hydra":
-            _remove(restored, key)
-    _set(restored, "ckpt_path", str(ckpt))
+        _put(restored, key, _raw(raw, key))
+    _put(restored, "ckpt_path", str(ckpt))
     if from_checkpoint:
-        _set(restored, "data.steps_per_epoch", "${val_every}")
+        _put(restored, "data.steps_per_epoch", "${val_every}")
     parsed = OverridesParser.create().parse_overrides(list(overrides))
-    log_dir = outputs_folder_of(run_dir)
-    if log_dir is not None and not any(_under(o.key_or_group, ("paths",)) for o in parsed):
-        # The new folder goes beside the run, under the outputs folder the run used
-        # (its paths.log_dir), not under this machine's default.
-        _set(restored, "paths.log_dir", str(log_dir))
+    parents = run_dir.parents  # <log_dir>/<task>/runs/<name>/<time>, .../multiruns/<time>/<job>
+    if len(parents) > 3 and parents[1].name in ("runs", "multiruns"):
+        if not any(_under(o.key_or_group, ("paths",)) for o in parsed):
+            # Beside the run, under the outputs folder it used, not under this machine's.
+            _put(restored, "paths.log_dir", str(parents[3]))
 
     applied, conflicts = [], []
     for override in parsed:
-        key = override.key_or_group
-        if key in ("ckpt_path", "resume"):
+        group, text = override.key_or_group, override.input_line
+        if group in ("ckpt_path", "resume"):
             continue
-        text = override.input_line
         applied.append(text)
-        if key in choices:  # a config group: model=..., data=..., trainer=...
-            conflicts += _group_conflicts(key, text, cfg, saved, choices, run_choices)
-            node_key = key.replace("/", ".")
-            if _free(node_key):
-                _set(restored, node_key, _raw(raw, node_key))
-                # A trainer=... option brings the Trainer, not its numerics: keep the run's.
-                for key in (k for k in COMPUTES if _under(k, (node_key,))):
-                    kept = OmegaConf.select(saved, key, default=_ABSENT)
-                    if kept is _ABSENT:
-                        _remove(restored, key)
-                    else:
-                        _set(restored, key, kept)
-            continue
+        key = group.replace("/", ".")
         if _under(key, FROM_HERE):
             continue
         if _free(key):
-            if override.is_delete():
-                _remove(restored, key)
-            else:
-                _set(restored, key, _raw(raw, key))
-            continue
-        if from_checkpoint and key.split(".")[0] not in saved:
-            continue  # a section the checkpoint does not store: the command line's
-        old = _plain(OmegaConf.select(saved, key, default=_ABSENT))
-        new = _ABSENT if override.is_delete() else _plain(OmegaConf.select(cfg, key))
-        if old != new:
-            conflicts.append(f"{key}: checkpoint {_shown(old)}, command line {_shown(new)}")
+            _put(restored, key, _raw(raw, key))
+            # A trainer=... option brings the Trainer, not its numerics: keep the run's.
+            for kept in (k for k in COMPUTES if _under(k, (key,))):
+                _put(restored, kept, _get(saved, kept))
+        elif group in choices and run_choices is not None:  # compared by name
+            if run_choices.get(group) != choices.get(group):
+                conflicts.append(f"{text}: the run used {group}={run_choices.get(group)}")
+        elif group in choices:  # compared by value; experiment=... can set any key
+            node = key if isinstance(OmegaConf.select(cfg, key), DictConfig) else ""
+            now, then = _leaves(cfg, node), _leaves(saved, node)
+            conflicts += [
+                f"{k}: checkpoint {then[k]}, command line {_shown(now.get(k, _ABSENT))} "
+                f"(from {text})"
+                for k in sorted(then)
+                if now.get(k, _ABSENT) != then[k]
+            ]
+        elif not from_checkpoint or key.split(".")[0] in saved:  # else the command line's
+            old, new = _get(saved, key), _get(cfg, key)
+            if old != new:
+                conflicts.append(f"{key}: checkpoint {_shown(old)}, command line {_shown(new)}")
     if conflicts:
+
+        def word(key: str) -> str:  # "trainer.* except trainer.precision"
+            node = key == "paths" or isinstance(OmegaConf.select(saved, key), DictConfig)
+            kept = ", ".join(k for k in COMPUTES if _under(k, (key,)))
+            return key + ".*" * node + f" except {kept}" * bool(kept)
+
         raise CheckpointError(
-            f"cannot resume {ckpt} with settings other than its run's: "
-            + "; ".join(conflicts)
-            + f". A resumed run keeps its own settings; only these may differ: "
-            f"{_may_change(saved)}. Leave these overrides out, or start a new run."
+            f"cannot resume {ckpt} with settings other than its run's: {'; '.join(conflicts)}. "
+            "A resumed run keeps its own settings; only these may differ: "
+            f"{', '.join(map(word, (*FREE, 'paths')))}. Leave these overrides out, or start a "
+            "new run."
         )
     OmegaConf.set_struct(restored, True)
     return restored, Resume(ckpt, run_dir, applied, from_checkpoint, run_choices)
@@ -290,13 +209,11 @@ _prepared: tuple[dict, Resume | None] | None = None
 def prepare_training(
     cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
 ) -> tuple[DictConfig, Resume | None]:
-    """The config a training run runs with, once per run: the resumed run's own settings with
-    the command line's on top (restore_run), checked (src.lit.config.check), and the objects
-    whose constructors check their own arguments built once (factory.build_parts), so that
-    every refusal comes before the run folder and the data."""
+    """The config a training run runs with, once per run: restore_run, check, and build the
+    objects whose constructors check their own arguments (factory.build_parts), so that every
+    refusal comes before the run folder and the data."""
     global _prepared
-    plain = OmegaConf.to_container(cfg, resolve=False)
-    if _prepared is not None and _prepared[0] == plain:
+    if _prepared is not None and _prepared[0] == OmegaConf.to_container(cfg, resolve=False):
         return cfg, _prepared[1]
     restored, resume = restore_run(cfg, overrides, choices)
     check(restored, "train", resuming=resume is not None)
@@ -306,7 +223,6 @@ def prepare_training(
 
 
 def describe(resume: Resume, iteration: int) -> str:
-    extra = ", ".join(resume.applied) if resume.applied else "none"
     if resume.from_checkpoint:  # no run folder around it: the folder above names no run
         start = (
             f"resuming from {resume.checkpoint} at iteration {iteration}, with the config "
@@ -317,4 +233,4 @@ def describe(resume: Resume, iteration: int) -> str:
             f"resuming the run {resume.run_dir} at iteration {iteration} from "
             f"{resume.checkpoint}, with its settings ({resume.run_dir / 'config.yaml'})"
         )
-    return f"{start}; command-line overrides on top: {extra}"
+    return f"{start}; command-line overrides on top: {', '.join(resume.applied) or 'none'}"

@@ -1,8 +1,7 @@
 """Run folders, settled before anything is written, and the one way a refusal reaches the user.
 
-Every run gets a new folder (src.data.files.claim_folder: runs started in the same second get
-`<time>` and `<time>-1`). A folder named on the command line (`hydra.run.dir=...`) is used as
-given, and refused when it already holds a run. `PrepareRun`, a Hydra callback, restores and
+Every run gets a new folder (claim_folder: runs started in the same second get `<time>` and
+`<time>-1`); one named with `hydra.run.dir=...` is refused when it holds a run. `PrepareRun`
 checks a training run's config before its folder exists, so a refused config creates none;
 what is found later (a misspelt action) removes the folder made for it.
 """
@@ -10,7 +9,6 @@ what is found later (a misspelt action) removes the folder made for it.
 from __future__ import annotations
 
 import contextlib
-import copy
 import os
 import re
 import shutil
@@ -30,8 +28,7 @@ from src.lit.factory import PROJECT_ROOT
 from src.lit.predictor import NonFiniteLossError
 from src.lit.resume import prepare_training
 
-# The project's errors for a user's mistake (bad data, config, checkpoint, a diverged run): a
-# refused run leaves nothing behind, and the command line prints them as one line.
+# A user's mistake (bad data, config, checkpoint, a diverged run): printed as one line.
 USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
 
 
@@ -42,15 +39,14 @@ def refuse(err: object) -> NoReturn:
 
 
 def path_safe(text: str) -> str:
-    """`text` with every character Hydra's override parser would stop at (or a shell would
-    expand) replaced by `_`, so that a sweep job's folder works as printed in `ckpt_path=...`."""
+    """`text` with what Hydra's override parser stops at (or a shell expands) replaced by `_`:
+    a sweep job's folder works as printed in `ckpt_path=...`."""
     return re.sub(r"[^A-Za-z0-9_.+@-]", "_", str(text))
 
 
 def training_run_name(ckpt_path: str | Path) -> str:
-    """The name of the training run a checkpoint belongs to: `run_name` of the run's
-    config.yaml (<run>/checkpoints/<file>.ckpt), else the run folder's name (its parent's when
-    the folder is a timestamp)."""
+    """`run_name` of the config.yaml of a checkpoint's run (<run>/checkpoints/<file>.ckpt),
+    else the run folder's name (its parent's when the folder is a timestamp)."""
     path = Path(ckpt_path)
     run = path.parent.parent if path.parent.name == "checkpoints" else path.parent
     with contextlib.suppress(Exception):  # an unreadable config only loses the name
@@ -64,9 +60,8 @@ def training_run_name(ckpt_path: str | Path) -> str:
 def evaluated_name(
     ckpt_path: str | None, model: str | None, data: str | None, predictions: str | None = None
 ) -> str:
-    """The run_name of an evaluation or visualisation (conf/eval.yaml): the training run and
-    checkpoint it evaluates, e.g. li2018_h36m_last; <model>_<data> for a baseline,
-    predictions_<file stem>_<data> for a file of predictions."""
+    """The run_name of an evaluation (conf/eval.yaml): <training run>_<checkpoint file>,
+    <model>_<data> for a baseline, predictions_<file stem>_<data> for a file of predictions."""
     if ckpt_path:
         return f"{training_run_name(ckpt_path)}_{Path(str(ckpt_path)).stem}"
     if predictions:
@@ -75,7 +70,7 @@ def evaluated_name(
 
 
 def register_resolvers() -> None:
-    """The resolvers conf/ uses; registered when this module is imported (src.cli, compose)."""
+    """The resolvers conf/ uses (registered on import, too)."""
     for name, resolver in (("project_root", lambda: str(PROJECT_ROOT)),
                            ("evaluated", evaluated_name), ("path_safe", path_safe)):  # fmt: skip
         if not OmegaConf.has_resolver(name):
@@ -89,45 +84,40 @@ def holds_run(folder: Path) -> bool:
     return (folder / "config.yaml").exists() or any(folder.glob("checkpoints/*.ckpt"))
 
 
-_claimed: dict = {}  # this process's folder: {"folder", "created", "before", "parents"}
+_claimed: dict = {}  # this process's folder, what it held before, the folders made for it
 
 
 def claim_run_folder(folder: str | os.PathLike, exact: bool = False) -> Path:
-    """Create this run's folder and return it; no other process can get the same one.
-    exact=True: the user named it; an existing folder is used only if it holds no run (Hydra's
-    .hydra/, created here, is the claim)."""
+    """Create this run's folder, which no other process can get. exact=True: the user named
+    it; an existing one is used only if it holds no run (the .hydra/ made here is the claim)."""
     folder = Path(folder)
-    parents = [p for p in folder.parents if not p.exists()]
+    made = [p for p in folder.parents if not p.exists()]
     if not exact:
         folder = claim_folder(folder)
-        _claimed.update(folder=folder, created=True, before=set(), parents=parents)
+        _claimed.update(folder=folder, before=set(), made=[folder, *made])
         return folder
-    created = not folder.exists()
+    made = made if folder.exists() else [folder, *made]
     folder.mkdir(parents=True, exist_ok=True)
     before = set(os.listdir(folder))
     try:
-        (folder / ".hydra").mkdir()
-    except FileExistsError:
-        taken = True
-    else:
-        taken = holds_run(folder)
-        if taken:
+        (folder / ".hydra").mkdir()  # one process alone can create it
+        if holds_run(folder):
             (folder / ".hydra").rmdir()
-    if taken:
+            raise FileExistsError
+    except FileExistsError:
         raise ConfigError(
             f"the run folder {folder} (hydra.run.dir) already holds a run; nothing was "
             "written to it. Name another folder, or leave hydra.run.dir out to get a new "
             "timestamped one."
-        )
-    _claimed.update(folder=folder, created=created, before=before, parents=parents)
+        ) from None
+    _claimed.update(folder=folder, before=before, made=made)
     return folder
 
 
 @contextlib.contextmanager
 def nothing_left_if_refused(started: str | None = "config.yaml"):
-    """Around an entry point's work: a user error raised inside removes what this process put
-    into the run folder, unless the run had started (its file `started` exists; None: never),
-    then goes on to the one-line message."""
+    """A user error raised inside removes what this process put into the run folder, unless
+    the run had started (its file `started` exists; None: never), and goes on."""
     try:
         yield
     except USER_ERRORS:
@@ -135,17 +125,14 @@ def nothing_left_if_refused(started: str | None = "config.yaml"):
         claimed = _claimed.get("folder")
         if claimed is None or claimed.resolve() != folder.resolve():
             raise
-        if started is not None and (folder / started).exists():
+        if started and (folder / started).exists():
             raise
-        if _claimed["created"]:
-            shutil.rmtree(folder, ignore_errors=True)
-            for parent in _claimed["parents"]:
-                with contextlib.suppress(OSError):  # only if empty: another run may use it
-                    parent.rmdir()
-        else:
-            for name in set(os.listdir(folder)) - _claimed["before"]:
-                path = folder / name
-                shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        for name in set(os.listdir(folder)) - _claimed["before"]:
+            path = folder / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+        for made in _claimed["made"]:
+            with contextlib.suppress(OSError):  # only if empty: another run may use a parent
+                made.rmdir()
         raise
 
 
@@ -164,11 +151,9 @@ def _claim(config: DictConfig, key: str) -> Path:
 
 
 class PrepareRun(Callback):
-    """For a training run: restore the resumed run's settings and check them
-    (src.lit.resume.prepare_training); then, for any entry point, claim a run folder no other
-    process can get. In that order, so a refused config creates no folder, and Hydra writes
-    only into the folder claimed here. (Hydra turns an exception raised in a callback into a
-    warning: a refusal exits here.)"""
+    """Restore and check a training run's config (prepare_training), then claim the run
+    folder: a refused config creates none, and Hydra writes only into the folder claimed here.
+    (Hydra turns an exception raised in a callback into a warning: a refusal exits here.)"""
 
     def on_run_start(self, config: DictConfig, config_name: str | None = None, **kwargs) -> None:
         from lightning.pytorch.utilities import rank_zero_only
@@ -186,23 +171,18 @@ class PrepareRun(Callback):
 
     @staticmethod
     def _prepare_training(config: DictConfig) -> None:
-        task = copy.deepcopy(config)
-        with read_write(task), open_dict(task):
-            del task["hydra"]
+        task = OmegaConf.masked_copy(config, [k for k in config if k != "hydra"])
         overrides = list(config.hydra.overrides.task)
         choices = OmegaConf.to_container(config.hydra.runtime.choices)
         restored, resume = prepare_training(task, overrides, choices)
         if resume is None:
             return
-        # The run's settings become this job's, so Hydra's .hydra/ and the folder's name
-        # (run_name, task_name) are the resumed run's.
-        values = OmegaConf.to_container(restored, resolve=False)
+        # The run's settings become this job's, before its folder is named from them
+        # (run_name, task_name, paths.log_dir); .hydra/ records the run's options.
         given = {o.split("=", 1)[0].lstrip("+~") for o in overrides}
         with read_write(config), open_dict(config):
-            for key in [k for k in config if k != "hydra"]:
-                del config[key]
-            for key, value in values.items():
-                config[key] = value
+            for key, value in OmegaConf.to_container(restored, resolve=False).items():
+                config[key] = value  # every key of `config` but hydra
             for group, option in (resume.run_choices or {}).items():
                 if group in config.hydra.runtime.choices and group not in given:
                     config.hydra.runtime.choices[group] = option
@@ -214,6 +194,5 @@ class PrepareRun(Callback):
         folder = _claim(config, "hydra.sweep.dir")
         with read_write(config.hydra):
             config.hydra.sweep.dir = str(folder)
-            # Each job's config is composed again from these overrides (Hydra's
-            # load_sweep_config): without this one it would name the unclaimed folder.
+            # Each job's config is composed again from these (Hydra's load_sweep_config).
             config.hydra.overrides.hydra.append(f'hydra.sweep.dir="{folder}"')
