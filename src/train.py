@@ -118,7 +118,6 @@ def train(cfg: DictConfig) -> float:
     if trainer.is_global_zero:
         if not fast_dev_run:
             add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
-        out_dir.mkdir(parents=True, exist_ok=True)  # in-process under fast_dev_run, none made it
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()
