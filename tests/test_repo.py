@@ -63,6 +63,17 @@ def test_pages_cite_no_issue_numbers_and_every_link_resolves():
                 assert (page.parent / target).exists(), f"{page.name} links to {target}"
 
 
+def test_every_test_named_in_the_guarantees_exists():
+    """A guarantee whose test was renamed or deleted would stand unproven on the page."""
+    text = (ROOT / "docs" / "guarantees.md").read_text()
+    named = set(re.findall(r"(tests/test_\w+\.py)::(test_\w+)", text))
+    assert len(named) > 50
+    for path, name in sorted(named):
+        tree = ast.parse((ROOT / path).read_text())
+        defined = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+        assert name in defined, f"docs/guarantees.md names {path}::{name}, which does not exist"
+
+
 # ------------------------------------------------------------------------------- code layout
 # Lower to higher; a module imports only from its own layer and those below it.
 LAYERS = [
