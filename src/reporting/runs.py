@@ -1,11 +1,7 @@
 """Where src.report's runs come from: finished run folders (src.train's layout), run records
-(one small JSON file per evaluated run, docs/runs) and scored predictions files.
-
-A run is evaluated on its best checkpoint (lowest validation error, on the test windows as in
-both reference implementations, so it uses test information: protocol section 8) and its last.
-A record holds what the page needs of an evaluated run and no checkpoint, so that a page grows
-over several machines: a report evaluates only the runs it is given and reads the others'
-records. `<run_name>_seed<seed>_<config hash>.json`: the run evaluated again replaces it.
+and scored predictions files. A record (`<run_name>_seed<seed>_<config hash>.json`, docs/runs)
+holds what the page needs of an evaluated run, no checkpoint, so that a page grows over several
+machines: a report evaluates only the runs it is given and reads the others' records.
 """
 
 from __future__ import annotations
@@ -28,7 +24,7 @@ ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
 RECORD_FORMAT = 1
 RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
 KEPT = "finished wall_time_s train_time_s commit device missing_files train_missing_files "
-KEPT = (KEPT + "archive_sha256 validations").split()
+KEPT += "archive_sha256 validations"
 
 
 def _yaml(path: Path) -> dict:
@@ -37,18 +33,14 @@ def _yaml(path: Path) -> dict:
 
 def _is_run(folder: Path) -> bool:
     # A multirun's .hydra/ folders hold a config.yaml too, but neither of the others.
-    return (folder / "config.yaml").is_file() and (
-        (folder / "checkpoints").is_dir() or (folder / "summary.yaml").is_file()
-    )
-
-
-def _natural(path: Path) -> list:
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+    has = lambda name: (folder / name).exists()  # noqa: E731
+    return has("config.yaml") and (has("checkpoints") or has("summary.yaml"))
 
 
 def discover_runs(paths: list) -> list[Path]:
     """The run folders given or found under them, in sweep order (job 2 before 10), each once."""
     runs: list[Path] = []
+    natural = lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))]  # noqa: E731
     for path in (Path(p).resolve() for p in paths):
         if not path.exists():
             raise ConfigError(f"runs: {path} does not exist")
@@ -59,7 +51,7 @@ def discover_runs(paths: list) -> list[Path]:
                 f"runs: no training run under {path}: a run folder holds config.yaml and "
                 "checkpoints/ (is the run finished, and is this its folder?)"
             )
-        runs += [r for r in sorted(found, key=_natural) if r not in runs]
+        runs += [r for r in sorted(found, key=natural) if r not in runs]
     return runs
 
 
@@ -184,7 +176,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
         "evaluated": {"commit": commit, "date": date},
         **{k: _portable(run[k], run["path"], shown) for k in RECORD_KEYS},
         "notes": run.get("notes", []),
-        **{k: run[k] for k in KEPT if k in run},
+        **{k: run[k] for k in KEPT.split() if k in run},
     }
     path = Path(folder) / record_name(run)
     path.write_text(json.dumps(record, indent=1) + "\n")
