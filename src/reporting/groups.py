@@ -1,8 +1,6 @@
-"""The page's rows: runs of one experiment (run_name), dataset and configuration, which differ
-only in their seed. Runs of one configuration and seed (a run and a sweep job, a copy, the
-earlier segments of a resumed run) are one seed: the longest-trained is kept, the group says
-whether each other is a copy or a segment.
-"""
+"""The page's rows: runs of one experiment (run_name), dataset and configuration, differing only
+in their seed. Runs of one configuration and seed (a run and a sweep job, a copy, a resumed
+run's earlier segments) are one seed: the longest-trained is kept, the others named."""
 
 from __future__ import annotations
 
@@ -144,15 +142,12 @@ def _seed_order(seed) -> tuple:
 
 
 def _short_label(run_name: str, settings: dict) -> str:
-    words = []
-    for key, value in settings.items():
-        if key in SETTING_NAMES:
-            word = SETTING_NAMES[key] if value not in (None, False) else None
-        else:
-            word = None if value is None else f"{key.rsplit('.', 1)[-1]}={value}"
-        if word and word not in words:
-            words.append(word)
-    return ", ".join([run_name, *words])
+    words = [
+        SETTING_NAMES.get(k, f"{k.rsplit('.', 1)[-1]}={v}")
+        for k, v in settings.items()
+        if (v not in (None, False) if k in SETTING_NAMES else v is not None)
+    ]
+    return ", ".join([run_name, *dict.fromkeys(words)])
 
 
 def group_runs(runs: list[dict]) -> list[Group]:

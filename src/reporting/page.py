@@ -1,8 +1,6 @@
-"""The results page (docs/results.md), its per-action CSV files and figures, and the README's
-Results block: the headline (headline.py), the budget, how to read the numbers, the ablation
-claims (claims.py), provenance, the averages of each protocol and metric, the CSVs, the command.
-What the numbers mean is decided in frame.py.
-"""
+"""The results page (docs/results.md), its per-action CSVs and figures, and the README's block:
+the headline (headline.py), budget, how to read it, ablation claims (claims.py), provenance, the
+averages of each protocol and metric, the CSVs, the command. The numbers are frame.py's."""
 
 from __future__ import annotations
 
@@ -51,19 +49,12 @@ def _wall_time(run: dict) -> str:
 def provenance_table(results: Results) -> str:
     rows = []
     for group in results.entries:
-        trained = group.kind == "trained"
         for r in group.runs:
             missing, commit = len(r.get("missing_files") or []), r.get("commit") or "-"
             row = [f"{group.label} ({group.kind})", "-", "-", commit, "-", "-", "-"]
-            if trained:
-                row = [
-                    group.label,
-                    str(r["seed"]),
-                    f"`{r['path']}`",
-                    commit,
-                    f"{group.iterations:,}",
-                ]
-                row += [span([r["iterations_of"]["best"]]), _wall_time(r)]
+            if group.kind == "trained":
+                row[:3] = group.label, str(r["seed"]), f"`{r['path']}`"
+                row[4:] = f"{group.iterations:,}", span([r["iterations_of"]["best"]]), _wall_time(r)
             row += [r.get("device") or "-", r.get("archive_sha256", "-")]
             row += [f"{missing} (see above)" if missing else "none"]
             rows.append([*row, "; ".join(r.get("notes", [])) or "-"])
