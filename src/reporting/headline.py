@@ -1,7 +1,6 @@
-"""The headline of the results page, also the README's Results block: every trained experiment
-at each budget, ours at the best and last checkpoints with the published same-set averages and
-ours minus them, the verdict, the zero-velocity yardstick, why a row misses; and the figures.
-"""
+"""The headline of the results page, also the README's Results block: each trained experiment
+and budget, ours (best, last) beside the published same-set averages and ours minus them, the
+verdict, the zero-velocity yardstick, why a row misses; and the figures."""
 
 from __future__ import annotations
 
@@ -53,20 +52,18 @@ def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str
     """(label, cells, verdict): the reference's same-set average with ours minus it (best,
     last), and where that is beyond the target."""
     actions, same = results.actions(group), results.same_set(group, ref)
+    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
     if not same:
         cells = [fmt(ref.published.get(AVERAGE, {}).get(ms)) for ms in HORIZONS]
         return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
     name = f"{ref.name}, {len(actions)} actions"
     if slips := known_slips(ref.key, actions):
         name += f" incl. slips ({', '.join(slips)})"
-    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
     gaps = lambda ms: ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)  # noqa: E731
     cells = [f"{same[ms]:.2f} ({gaps(ms)})" if ms in same else "-" for ms in HORIZONS]
-    if target is None:
-        return name, cells, "-"
-    missed = results.missed(group, protocol, ref, target)
-    if not any(missed.values()):
-        return name, cells, f"within {target:.2f}"
+    missed = results.missed(group, protocol, ref, target) if target is not None else {}
+    if target is None or not any(missed.values()):
+        return name, cells, "-" if target is None else f"within {target:.2f}"
     if missed["best"] == missed["last"]:
         return name, cells, f"beyond {target:.2f} at {ms_list(missed['best'])}"
     where = "; ".join(f"{s} {ms_list(missed[s])}" for s in SELECTIONS if missed[s])
@@ -99,24 +96,18 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
         j, verdict = judged.get(group), "shorter budget"
         if j is not None and j.status == "not judged":
             verdict = f"not judged ({j.why})"
-        elif j is not None and j.reference is None:
-            verdict = j.status
         elif j is not None:
-            verdict = f"**{j.status}**, judged against {j.reference.name}"
-            if len(results.references(group)) > 1:
-                about = f" ({j.reference.about})" if j.reference.about else ""
-                verdict += mark(
-                    f"{group.label}: judged against {j.reference.name}{about}: {j.why}."
-                )
-        for s in SELECTIONS:
-            first = (label, group.dataset) if s == "best" else ("", "")
-            cells = stat_cells(results.average(group, protocol, s, judged=True))
-            rows.append([*first, budget, f"ours, {s}", n, *cells, verdict if s == "best" else ""])
-        for s in SELECTIONS if untrained else ():
-            cells = stat_cells(results.average(group, protocol, s))
-            rows.append(
-                ["", "", budget, f"ours, {s}, all {len(everything)} actions", n, *cells, ""]
-            )
+            ref = j.reference
+            verdict = j.status if ref is None else f"**{j.status}**, judged against {ref.name}"
+            if ref is not None and len(results.references(group)) > 1:
+                about = f" ({ref.about})" if ref.about else ""
+                verdict += mark(f"{group.label}: judged against {ref.name}{about}: {j.why}.")
+        for all_actions in (False, True) if untrained else (False,):
+            for s in SELECTIONS:
+                first = (label, group.dataset) if (s, all_actions) == ("best", False) else ("", "")
+                what = f"ours, {s}" + f", all {len(everything)} actions" * all_actions
+                cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
+                rows.append([*first, budget, what, n, *cells, "" if first[0] == "" else verdict])
         for ref in results.references(group):
             name, cells, text = _reference_row(
                 results, group, ref, protocol, targets.get(group.dataset)
