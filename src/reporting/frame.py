@@ -1,12 +1,8 @@
-"""Every evaluation as one long table, and what the results page concludes from it.
-
-`Results.frame`: a row per run, protocol, checkpoint ("-" for a baseline), metric, action and
-horizon; g is the group's index in `Results.entries` (trained groups, then baselines), value
-NaN where the action is absent (`absent` says why), trained False for an action this copy has
-no training file of. A cell of the page is the mean ± std (n - 1) over the seeds of each seed's
-average over the actions. A group is judged against the model's own paper, unless its same-set
-average includes a known slip of the paper and another reference's does not, over the actions
-with training files (not CMU washwindow).
+"""Every evaluation as one long table (`Results.frame`: a row per run, protocol, checkpoint, metric,
+action, horizon; value NaN where absent, trained False without training files), and what the page
+concludes from it: a cell is the mean ± std (n - 1) over the seeds of each seed's average over the
+actions; a group is judged against its paper's same-set average, over the actions with training
+files, or another reference's where its paper's includes a known slip.
 """
 
 from __future__ import annotations
@@ -47,8 +43,7 @@ class Reference(NamedTuple):
 
 
 class Judgement(NamedTuple):
-    """ "reproduces", "misses", "not judged" (only an average published) or "-" (nothing
-    published, or no target); the reference, why that one; the horizons missed per checkpoint."""
+    """A status ("reproduces", "misses", "not judged", "-"), the reference, why, horizons missed."""
 
     status: str
     reference: Reference | None = None
@@ -146,8 +141,7 @@ class Results:
         return [a for a in self.evaluated.get(self._g[group], []) if a not in gone]
 
     def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
-        """The seeds' averages over the actions (judged: those with training files) by horizon;
-        None where there are none."""
+        """Each seed's average over the (judged) actions, by horizon; None where there is none."""
         key = (self._g[group], protocol, checkpoint, metric)
         with contextlib.suppress(KeyError):
             return self._seeds[judged].loc[key].groupby(level="horizon")
@@ -188,8 +182,7 @@ class Results:
         return same_set_average(reference.published, self.actions(group), HORIZONS)
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
-        """{checkpoint: horizons where its judged average is beyond `target` of the reference's
-        same-set average, at the printed precision}."""
+        """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""
         same, out = self.same_set(group, reference), {}
         for s in SELECTIONS:
             ours = self.means(group, protocol, s, judged=True)
@@ -219,8 +212,7 @@ class Results:
         return Judgement("misses" if any(missed.values()) else "reproduces", chosen, why, missed)
 
     def validation_means(self, group: Group, protocol: str) -> dict[int, dict[int, float]]:
-        """{iterations: {ms: mean over seeds}} of the average Euler error at the validations
-        every seed made; {} when a run has none or validated on another protocol."""
+        """{iterations: {ms: mean over the seeds}} at the validations every seed made, else {}."""
         curves = [r.get("validations") or {} for r in group.runs]
         protocols = {r["config"]["data"].get("eval_protocol", "srnn") for r in group.runs}
         if not all(curves) or protocols != {protocol}:
@@ -232,8 +224,7 @@ class Results:
         return out
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
-        """Where a judged row misses most: the actions that carry the gap, the seed spread
-        against it, and what was compared with the reference code."""
+        """Where a judged row misses most, the actions that carry it, the seed spread beside it."""
         ref, actions = judgement.reference, self.actions(group)
         same = self.same_set(group, ref)
         gaps = {

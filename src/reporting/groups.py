@@ -44,8 +44,7 @@ def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
 
 
 def identity(config: dict) -> dict[str, str]:
-    """The config less seed, paths, device, logging (trainer keys that change the numbers,
-    such as precision, stay)."""
+    """The config less seed, paths, device, logging (trainer keys that change numbers stay)."""
     return {
         k: v
         for k, v in _flatten(config).items()
@@ -59,8 +58,7 @@ def seed_of(run: dict):
 
 @dataclass(eq=False)  # a group is itself: hashed and compared by identity
 class Group:
-    """Runs of one experiment, dataset and budget differing only in their seed. settings: what
-    tells it from its experiment's other groups; left_out: why identical runs count once."""
+    """settings: what tells it from its experiment's other groups; left_out: runs counted once."""
 
     label: str
     run_name: str
@@ -98,8 +96,7 @@ def _segments_before(run: dict, members: list[dict]) -> set[str]:
 
 
 def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
-    """One run per seed (the longest-trained, then a finished one, then the first given), a
-    resumed run's validation curve joined over its segments, and a line per run left out."""
+    """One run per seed (longest-trained, finished, first given), a line per run left out."""
     rank = lambda r: (r.get("iterations") or 0, bool(r.get("finished", True)))  # noqa: E731
     kept: dict = {}
     for run in members:
@@ -151,8 +148,7 @@ def _short_label(run_name: str, settings: dict) -> str:
 
 
 def group_runs(runs: list[dict]) -> list[Group]:
-    """Groups in the page's order: H3.6M, CMU, other data (the papers' order), Li et al.'s
-    ablations last, an experiment's budgets together, the longest first; else as given."""
+    """In the page's order: H3.6M, CMU, other data, ablations last, longest budget first."""
     by_key: dict[tuple, list[dict]] = {}
     for run in runs:
         config = run["config"]
@@ -188,8 +184,7 @@ def group_runs(runs: list[dict]) -> list[Group]:
 
 
 def parse_notes(items: list[str], groups: list[Group]) -> dict[str, str]:
-    """{label: text} of `LABEL=TEXT` items, LABEL a group's short or full label; as one may
-    hold '=' ("m (data.future_len=10)"), the longest label the item starts with wins."""
+    """{label: text} of `LABEL=TEXT` items; the longest label wins, as one may hold '='."""
     names = {g.full_label: g.label for g in groups} | {g.label: g.label for g in groups}
     notes = {}
     for item in items:

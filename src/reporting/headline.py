@@ -6,17 +6,9 @@ from __future__ import annotations
 
 import datetime as dt
 
+import src.reporting.frame as fr
 from src.plots import Curve, line_panels
-from src.reporting.frame import (
-    HORIZONS,
-    PROTOCOLS,
-    SELECTIONS,
-    Results,
-    ms_list,
-    printed_gap,
-    signed,
-    stat,
-)
+from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTIONS, Results
 from src.reporting.published import REFERENCES, known_slips
 from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
 
@@ -29,7 +21,7 @@ TITLES = (
 
 
 def stat_cells(average: dict, decimals: int = 2) -> list[str]:
-    return [stat(*average[ms], decimals) if ms in average else "-" for ms in HORIZONS]
+    return [fr.stat(*average[ms], decimals) if ms in average else "-" for ms in HORIZONS]
 
 
 def span(values) -> str:
@@ -59,14 +51,16 @@ def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str
     name = f"{ref.name}, {len(actions)} actions"
     if slips := known_slips(ref.key, actions):
         name += f" incl. slips ({', '.join(slips)})"
-    gaps = lambda ms: ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)  # noqa: E731
-    cells = [f"{same[ms]:.2f} ({gaps(ms)})" if ms in same else "-" for ms in HORIZONS]
+    gaps = {
+        ms: [fr.signed(fr.printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS] for ms in same
+    }
+    cells = [f"{same[ms]:.2f} ({', '.join(gaps[ms])})" if ms in same else "-" for ms in HORIZONS]
     missed = results.missed(group, protocol, ref, target) if target is not None else {}
     if target is None or not any(missed.values()):
         return name, cells, "-" if target is None else f"within {target:.2f}"
     if missed["best"] == missed["last"]:
-        return name, cells, f"beyond {target:.2f} at {ms_list(missed['best'])}"
-    where = "; ".join(f"{s} {ms_list(missed[s])}" for s in SELECTIONS if missed[s])
+        return name, cells, f"beyond {target:.2f} at {fr.ms_list(missed['best'])}"
+    where = "; ".join(f"{s} {fr.ms_list(missed[s])}" for s in SELECTIONS if missed[s])
     return name, cells, f"beyond {target:.2f}: {where}"
 
 
