@@ -1,11 +1,8 @@
-"""Li et al.'s ablation claims (section 4.3; Tables 5 and 6, Figure 4; listed in references.json)
-beside what our runs show: each claim is pairs of experiments, "changed minus base", and the
-expected sign of that difference in average Euler error at its horizons. Our differences (mean
-over the seeds of each side), on every protocol and checkpoint, are marked where they are within
-the seed spread of li2018_h36m (largest minus smallest seed average): one seed per ablation
-cannot tell those apart. li2018_h36m_C20 is li2018_h36m's configuration under another run_name:
-where their configs differ only in run_name, the C = 20 points are li2018_h36m's (several
-seeds), and its own run is checked against li2018_h36m's of its seed.
+"""Li et al.'s ablation claims (section 4.3, Tables 5-6, Figure 4; references.json) beside ours:
+pairs of experiments, "changed minus base", and the expected sign of that difference at the
+claim's horizons. Ours (mean over each side's seeds) are marked where within li2018_h36m's seed
+spread, which one seed per ablation cannot tell apart. li2018_h36m_C20 is li2018_h36m's config
+under another run_name: then the C = 20 points are li2018_h36m's, its run checked against them.
 """
 
 from __future__ import annotations
@@ -14,15 +11,14 @@ from types import SimpleNamespace
 
 from src.reporting.frame import HORIZONS, SELECTIONS, Results, ms_list, signed
 from src.reporting.published import REFERENCES, published_frame
-from src.reporting.tables import AVERAGE, markdown
+from src.reporting.tables import AVERAGE, fmt, markdown
 
 FULL, C20 = "li2018_h36m", "li2018_h36m_C20"
 SHORT_PROTOCOLS = {"srnn": "8 windows", "random": "256 windows"}
 
 
 def claims() -> list[SimpleNamespace]:
-    """The claims, each pair with the paper's {ms: changed - base} (or None), the text's
-    numbers filled in from Tables 5 and 6."""
+    """The claims, each pair with the paper's {ms: changed - base} or None, numbers filled in."""
     f = published_frame()
     f = f[(f.paper == "li2018") & f.table.isin([5, 6]) & (f.action == AVERAGE)]
     printed = {k: r.set_index("ms").value.sort_index() for k, r in f.groupby(["table", "method"])}
@@ -71,10 +67,8 @@ def _verdict(claim, delta: dict[int, float], spread: dict[int, float] | None) ->
     if spread is None:  # +0.00 has no direction a reader can see: named, not counted
         zero = [ms for ms in horizons if round(delta[ms], 2) == 0]
         same = sum(1 for ms in horizons if delta[ms] > 0 and ms not in zero)
-        text = f"same direction at {same} of {len(horizons)}"
-        return (
-            text + (f", 0.00 at {ms_list(zero)}" if zero else "") + " (no seed spread to judge by)"
-        )
+        zero = f", 0.00 at {ms_list(zero)}" if zero else ""
+        return f"same direction at {same} of {len(horizons)}{zero} (no seed spread to judge by)"
     if against := [ms for ms in opposite if ms in clear]:
         return f"disagrees: opposite beyond the spread at {ms_list(against)}"
     if not opposite and len(clear) == len(horizons):
@@ -132,8 +126,7 @@ def _cell(delta: dict, spread: dict | None, ms: int) -> str:
 
 
 def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list, str | None]:
-    """The rows of one pair (the paper's, then ours on each protocol and checkpoint, or "not
-    trained") and the note naming the settings the two differ in."""
+    """The rows of a pair (the paper's, ours or "not trained") and what the two differ in."""
     changed_name, base_name, paper = pair
     name = lambda n: n if n == FULL else n.removeprefix("li2018_h36m_")  # noqa: E731
     label = f"{name(changed_name)} − {name(base_name)}"
@@ -166,8 +159,7 @@ def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list,
 
 
 def claims_section(results: Results, protocols: list[str], heading: str) -> list[str]:
-    """The section; [] unless li2018_h36m and an ablation to compare it with were trained. A
-    claim none of whose pairs was trained is left out."""
+    """The section, [] unless li2018_h36m and an ablation were trained; a claim once a pair is."""
     ablations = [g for g in results.groups if g.ablation and g.dataset == "h36m"]
     full = _nearest(results.groups, FULL, ablations[0] if ablations else None)
     if full is None or not ablations:
@@ -186,10 +178,7 @@ def claims_section(results: Results, protocols: list[str], heading: str) -> list
         return []
     rows = [
         [f"seed spread of {full.label}", SHORT_PROTOCOLS.get(p, p), s]
-        + [
-            f"{spread[p, s][ms]:.2f}" if spread[p, s] and ms in spread[p, s] else "-"
-            for ms in HORIZONS
-        ]
+        + [fmt((spread[p, s] or {}).get(ms)) for ms in HORIZONS]
         for p in protocols
         for s in SELECTIONS
     ]

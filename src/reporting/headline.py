@@ -41,8 +41,7 @@ def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
 
 
 def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
-    """(label, cells, verdict): the reference's same-set average with ours minus it (best,
-    last), and where that is beyond the target."""
+    """(label, cells, verdict): the same-set average, ours minus it, where beyond the target."""
     actions, same = results.actions(group), results.same_set(group, ref)
     ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
     if not same:
@@ -160,9 +159,8 @@ def readme_block(results, protocol, commit, targets, figure=None, page="docs/res
 
 
 def figures(results: Results, protocol: str):
-    """(error against horizon, a panel per dataset: ours best with its ± band and last dotted,
-    the published same-set averages dashed; validation error at 400 and 1000 ms against
-    iteration, a panel per headline experiment, the published values as lines)."""
+    """(error against horizon, a panel per dataset; validation error at 400 and 1000 ms against
+    iteration, a panel per experiment), the published values dashed."""
     horizon: dict[str, list[Curve]] = {}
     validation = []
     for k, group in enumerate(headline_groups(results)):

@@ -5,6 +5,7 @@ averages of each protocol and metric, the CSVs, the command. The numbers are fra
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import os
 from pathlib import Path
 
@@ -253,25 +254,18 @@ def write_page(results, out: Path, protocols, command, budget, commit, targets, 
     """The page, <stem>_{errors,validation}.png, <stem>/<metric>_<protocol>.csv, the README's."""
     tables = out.with_suffix("")
     tables.mkdir(parents=True, exist_ok=True)
-    for metric in ("euler", "mpjpe"):
-        for protocol in protocols:
-            (tables / f"{metric}_{protocol}.csv").write_text(
-                per_action_csv(results, protocol, metric)
-            )
-    names = []
-    for figure, kind in zip(
-        hl.figures(results, protocols[0]), ("errors", "validation"), strict=True
-    ):
-        names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
+    for m, p in itertools.product(("euler", "mpjpe"), protocols):
+        (tables / f"{m}_{p}.csv").write_text(per_action_csv(results, p, m))
+    figures, names = hl.figures(results, protocols[0]), [None, None]
+    for k, (figure, kind) in enumerate(zip(figures, ("errors", "validation"), strict=True)):
         if figure is not None:
-            figure.savefig(out.with_name(names[-1]))
-    out.write_text(
-        build_page(results, protocols, command, budget, commit, targets, notes, names, tables.name)
-    )
+            names[k] = f"{out.stem}_{kind}.png"
+            figure.savefig(out.with_name(names[k]))
+    page = (results, protocols, command, budget, commit, targets, notes, names, tables.name)
+    out.write_text(build_page(*page))
     if readme:
         here = readme.resolve().parent
         figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
-        block = hl.readme_block(
-            results, protocols[0], commit, targets, figure, os.path.relpath(out, here)
-        )
+        page = os.path.relpath(out, here)
+        block = hl.readme_block(results, protocols[0], commit, targets, figure, page)
         replace_block(readme, "results", block)

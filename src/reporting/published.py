@@ -45,8 +45,7 @@ def published_datasets() -> frozenset[str]:
 
 
 def published_table(paper: str, table: int | None, dataset: str, method: str) -> dict:
-    """{action: {ms: value}} of one method in one paper; table=None merges the paper's tables
-    (Li's Tables 1 and 2 cover the 15 H3.6M actions) and raises where they disagree."""
+    """{action: {ms: value}}; table=None merges the paper's tables (Li's 1 and 2: 15 actions)."""
     f = published_frame()
     rows = f[(f.paper == paper) & (f.dataset == dataset) & (f.method == method)]
     rows = rows if table is None else rows[rows.table == table]
@@ -83,7 +82,6 @@ def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | No
 
 
 def known_slips(label: str | None, actions: list[str]) -> dict[str, str]:
-    """{action: why} of the `actions` whose values under `label` ("<paper> <method>") are
-    known slips of the paper."""
+    """{action: why} of the `actions` whose values under `label` are slips of the paper."""
     slips = REFERENCES["slips"].get(label or "", {})
     return {a: slips[a] for a in actions if a in slips}

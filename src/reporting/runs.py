@@ -1,8 +1,6 @@
-"""Where src.report's runs come from: finished run folders (src.train's layout), run records
-and scored predictions files. A record (`<run_name>_seed<seed>_<config hash>.json`, docs/runs)
-holds what the page needs of an evaluated run, no checkpoint, so that a page grows over several
-machines: a report evaluates only the runs it is given and reads the others' records.
-"""
+"""src.report's runs: run folders, run records and scored predictions files. A record
+(`<run_name>_seed<seed>_<config hash>.json`) holds what the page needs of an evaluated run, no
+checkpoint, so that a page grows over machines: a report evaluates only the runs it is given."""
 
 from __future__ import annotations
 
@@ -56,9 +54,8 @@ def discover_runs(paths: list) -> list[Path]:
 
 
 def display_root(runs: list[Path]) -> Path:
-    """The folder the page names run folders relative to (no machine's paths): the project, or
-    the runs' common folder raised until each shows as <run_name>/<time> at least (two
-    experiments started in the same second must not read alike)."""
+    """The folder run folders are shown relative to: the project, or their common folder raised
+    until each shows as <run_name>/<time> (two started in the same second must not read alike)."""
     runs = [Path(r).resolve() for r in runs]
     if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
         return PROJECT_ROOT
@@ -69,9 +66,8 @@ def display_root(runs: list[Path]) -> Path:
 
 
 def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
-    """({"best": path, "last": path}, notes). best: summary.yaml's, of the whole run, resumes
-    included (maybe in an earlier segment's folder; in a moved one found by its name), else the
-    folder's newest best-*.ckpt, said in the notes. last: checkpoints/last.ckpt."""
+    """({"best", "last"}: path, notes): summary.yaml's best (of all segments; in a moved folder by
+    its name), else the newest best-*.ckpt, said in the notes; checkpoints/last.ckpt."""
     folder, notes, best, summary = run / "checkpoints", [], None, _yaml(run / "summary.yaml")
     if named := summary.get("best_checkpoint"):
         named = Path(named)
@@ -92,8 +88,7 @@ def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
 
 
 def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
-    """The checkpoint's iteration, and the files its data copy lacked when it trained (an
-    evaluation sees only the test files)."""
+    """Its iteration, and the files its data copy lacked in training (evaluations see test's)."""
     from src.lit.checkpoints import read_checkpoint
 
     ckpt = read_checkpoint(path)
@@ -153,8 +148,7 @@ def record_name(run: dict) -> str:
 
 
 def _portable(value, run_path: str, shown: dict[str, str]):
-    """`value` without absolute paths: a checkpoint as the page shows it (else in the run's
-    shown folder), another absolute path (an override's) by its last part."""
+    """`value` without absolute paths: a checkpoint as shown, another by its last part."""
     if isinstance(value, dict):
         out = {k: _portable(v, run_path, shown) for k, v in value.items()}
         if isinstance(ckpt := value.get("checkpoint"), str):
@@ -184,8 +178,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
 
 
 def read_records(folder: Path, protocols: list[str]) -> list[dict]:
-    """The runs recorded in `folder`, each with a note naming its record; a file that is not a
-    record, or lacks one of `protocols`, is refused naming the fix."""
+    """The runs recorded in `folder`, each with a note naming its record."""
     if not Path(folder).is_dir():
         raise ConfigError(
             f"records={folder} is not a folder; give the folder of run records (docs/runs holds "
@@ -239,8 +232,7 @@ def mark_archives(entries: list[dict], archives: Path | None) -> None:
 
 
 def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
-    """A row beside the baselines per model and dataset scored from a predictions file (`src.eval
-    predictions=...`), from its results.json of each protocol."""
+    """A row per model and dataset scored from predictions (its results.json of each protocol)."""
     entries: dict[tuple[str, str], dict] = {}
     for path in paths:
         result = read_results(path)

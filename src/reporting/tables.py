@@ -34,8 +34,7 @@ def fmt(value: float | None, decimals: int = 2) -> str:
 
 
 def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
-    """The published {action: {ms: value}} averaged over our `actions` (a paper's own average
-    covers all of its actions), at each horizon where every one of them has a value."""
+    """The published values averaged over our `actions`, where every one of them has a value."""
     out = {}
     for ms in horizons_ms if published and actions else ():
         cells = [published.get(a, {}).get(ms) for a in actions]
@@ -45,8 +44,7 @@ def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
 
 
 def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> dict:
-    """{action: {ms: value}} at the table horizons of a metric's output (A, T), less `absent`;
-    an action without windows (NaN) must be listed absent, so that none silently disappears."""
+    """{action: {ms: value}} of a metric's (A, T) output; a NaN action must be listed absent."""
     absent, out = dict(absent or {}), {}
     horizons = horizon_frame_indices(frame_ms, values.shape[1])
     for action, row in zip(actions, values.detach().double().cpu().tolist(), strict=True):
@@ -65,8 +63,7 @@ def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> d
 def result_table(
     title, metric, unit, actions, horizons_ms, values, absent, published=None, published_label=None
 ) -> dict:
-    """The table as results.json holds it (horizons as text keys); `values` and `absent` as
-    results_from_metric checked them: each action in exactly one."""
+    """The table as results.json holds it; values and absent as results_from_metric gives them."""
     horizons = [int(ms) for ms in horizons_ms]
     if not horizons:
         raise ReportingError(f"{title}: no horizons; the model predicts too few frames")
@@ -92,8 +89,7 @@ def result_table(
 
 
 def table_frame(table: dict) -> pd.DataFrame:
-    """The table long (action, ms, value, published, note), then the average (published: the
-    same-set one) and the paper's as printed."""
+    """Long (action, ms, value, published, note), with the averages same-set and as printed."""
     published, horizons = table.get("published") or {}, list(map(str, table["horizons_ms"]))
     rows = [
         (a, ms, table["values"].get(a, {}).get(ms, "absent"), published.get(a, {}).get(ms))

@@ -1,5 +1,4 @@
-"""TensorBoard: the layout of the error curves src.train writes, and the validation curve
-src.report reads back from a run folder."""
+"""The TensorBoard layout src.train writes, and the validation curve src.report reads back."""
 
 from __future__ import annotations
 
@@ -9,8 +8,7 @@ AVERAGE_TAG = "val_euler/average/"
 
 
 def add_error_curve_layout(writer, actions: list[str], horizons) -> None:
-    """Custom scalars: per metric, a chart per action (and the average) with a line per horizon;
-    the tags are MotionPredictor's."""
+    """Custom scalars: a chart per metric and action (and the average), a line per horizon."""
     layout = {
         f"val {m} error per horizon": {
             a: ["Multiline", [f"val_{m}/{a}/{ms:04d}ms" for ms in horizons]]
