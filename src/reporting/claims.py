@@ -36,8 +36,7 @@ def claims() -> list[SimpleNamespace]:
 
 def _differences(a, b) -> list[str]:
     """What two groups' configs differ in (run_name aside): `key a vs b`, sections in one only."""
-    ia = {k: v for k, v in a.ident.items() if k != "run_name"}
-    ib = {k: v for k, v in b.ident.items() if k != "run_name"}
+    ia, ib = ({k: v for k, v in g.ident.items() if k != "run_name"} for g in (a, b))
     out = [f"{k} {ia[k]} vs {ib[k]}" for k in sorted(ia.keys() & ib.keys()) if ia[k] != ib[k]]
     for mine, theirs, who in ((ia, ib, a), (ib, ia, b)):
         sections = sorted({k.split(".")[0] for k in mine.keys() - theirs.keys()})
@@ -118,13 +117,6 @@ def _c20_line(full, c20, protocols: list[str]) -> str:
     return text
 
 
-def _cell(delta: dict, spread: dict | None, ms: int) -> str:
-    if ms not in delta:
-        return "-"
-    within = spread is not None and abs(delta[ms]) <= spread.get(ms, 0)
-    return f"({signed(delta[ms])})" if within else signed(delta[ms])
-
-
 def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list, str | None]:
     """The rows of a pair (the paper's, ours or "not trained") and what the two differ in."""
     changed_name, base_name, paper = pair
@@ -147,7 +139,10 @@ def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list,
         for s in SELECTIONS:
             a, b, gap = results.means(changed, p, s), results.means(base, p, s), spread[p, s]
             delta = {ms: a[ms] - b[ms] for ms in HORIZONS if ms in a and ms in b}
-            cells = [_cell(delta, gap, ms) for ms in HORIZONS]
+            # A difference within the seed spread is printed in parentheses.
+            within = {ms for ms in delta if gap is not None and abs(delta[ms]) <= gap.get(ms, 0)}
+            cells = [signed(delta[ms]) if ms in delta else "-" for ms in HORIZONS]
+            cells = [f"({c})" if ms in within else c for c, ms in zip(cells, HORIZONS, strict=True)]
             rows.append([first, SHORT_PROTOCOLS.get(p, p), s, *cells, _verdict(claim, delta, gap)])
             first = ""
     differ = _differences(changed, base)

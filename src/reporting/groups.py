@@ -81,20 +81,6 @@ class Group:
         return self.run_name in ABLATIONS
 
 
-def _segments_before(run: dict, members: list[dict]) -> set[str]:
-    """The folders of the runs a resumed run continues (its absolute ckpt_path's, and so on)."""
-    by_folder = {m["folder"]: m for m in members if m.get("folder")}
-    found: set[str] = set()
-    while (ckpt := run["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
-        folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
-        stop = folder in found or folder not in by_folder
-        found.add(folder)
-        if stop:
-            break
-        run = by_folder[folder]
-    return found
-
-
 def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     """One run per seed (longest-trained, finished, first given), a line per run left out."""
     rank = lambda r: (r.get("iterations") or 0, bool(r.get("finished", True)))  # noqa: E731
@@ -102,9 +88,16 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     for run in members:
         if rank(run) > rank(kept.setdefault(seed_of(run), run)):
             kept[seed_of(run)] = run
-    lines = []
+    lines, by_folder = [], {m["folder"]: m for m in members if m.get("folder")}
     for seed, run in kept.items():
-        segments = _segments_before(run, members)
+        segments, before = set(), run  # the folders of the runs a resumed run continues
+        while (ckpt := before["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
+            folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
+            stop = folder in segments or folder not in by_folder
+            segments.add(folder)
+            if stop:
+                break
+            before = by_folder[folder]
         earlier = [m for m in members if m.get("folder") in segments]
         if earlier and "validations" in run:  # each segment's folder logged its own part
             curve = {
