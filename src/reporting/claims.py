@@ -165,9 +165,8 @@ def claims_section(results: Results, protocols: list[str], heading: str) -> list
     for claim in claims():
         pairs = [_pair(results, claim, pair, full, protocols, spread) for pair in claim.pairs]
         if notes := [note for _, note in pairs if note]:  # a pair was trained
-            table = markdown(
-                [r for rows, _ in pairs for r in rows], [*columns, "against the claim"]
-            )
+            table = [r for rows, _ in pairs for r in rows]
+            table = markdown(table, [*columns, "against the claim"])
             shown += [f"### {claim.title}", "", claim.text, "", table, "", *notes, ""]
     if not shown:
         return []

@@ -65,12 +65,8 @@ def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str
 
 def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
     """(table, footnotes, why-rows-miss lines) of the headline."""
-    rows, notes = [], []
-
-    def mark(text: str) -> str:
-        if text not in notes:
-            notes.append(text)
-        return str(notes.index(text) + 1).translate(SUPERSCRIPTS)
+    rows, notes = [], {}  # footnote -> its number
+    mark = lambda text: str(notes.setdefault(text, len(notes) + 1)).translate(SUPERSCRIPTS)  # noqa: E731
 
     groups = headline_groups(results)
     judged = verdicts(results, groups, protocol, targets)
@@ -113,7 +109,7 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             cells = stat_cells(results.average(zero[0], protocol, "-", judged=True))
             what = f"baseline, {len(results.actions(zero[0]))} actions"
             rows.append(["zero-velocity", group.dataset, "-", what, "-", *cells, "the yardstick"])
-    footnotes = [f"{str(k + 1).translate(SUPERSCRIPTS)} {t}" for k, t in enumerate(notes)]
+    footnotes = [f"{str(k).translate(SUPERSCRIPTS)} {t}" for t, k in notes.items()]
     ablations = [g for g in results.groups if g.ablation]
     if link and ablations and len(groups) < len(results.groups):
         footnotes.append(
