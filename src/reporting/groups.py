@@ -16,10 +16,8 @@ from src.lit.resume import COMPUTES
 # draws other masks than eager, like another seed), and where a resumed run came from.
 IGNORED_KEYS = "seed data.seed ckpt_path resume checkpoint_every media_every progress_every_s "
 IGNORED_KEYS = set((IGNORED_KEYS + "task_name").split())
-IGNORED_PREFIXES = tuple(
-    "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive data.num_workers "
-    "data.eval_batch_size".split()
-)
+IGNORED_PREFIXES = "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive "
+IGNORED_PREFIXES = tuple((IGNORED_PREFIXES + "data.num_workers data.eval_batch_size").split())
 BUDGET_KEYS = {"iterations", "val_every"}  # the budget has a column of its own
 # Settings named in words in a label when on (the paper's behaviour is off); any other setting
 # that tells two groups of one experiment apart is shown as `leaf=value`.
@@ -27,10 +25,8 @@ SETTING_NAMES = {
     "model.net.reference_eta_offset": "reference-code switches",
     "adversarial.reference_fake_slot": "reference-code switches",
 }
-ABLATIONS = [
-    f"li2018_h36m_{n}"
-    for n in "no_long_term kernel_4x4 kernel_7x2 C5 C5_no_adv C10 C10_no_adv C20 C20_no_adv".split()
-]
+ABLATIONS = "no_long_term kernel_4x4 kernel_7x2 C5 C5_no_adv C10 C10_no_adv C20 C20_no_adv"
+ABLATIONS = [f"li2018_h36m_{n}" for n in ABLATIONS.split()]
 
 
 def _flatten(config: dict, prefix: str = "") -> dict[str, str]:

@@ -119,17 +119,14 @@ def table_markdown(table: dict) -> str:
     names = {AVERAGE: f"**{AVERAGE}**", AS_PRINTED: "published average, as printed"}
     names |= {a: f"{a} [{reasons.index(r) + 1}]" for a, r in table["absent"].items()}
 
-    def cell(row) -> str:
-        if row.value in ("absent", ""):
-            return row.value or fmt(row.published, decimals)
-        text = f"{row.value:.{decimals}f}"
-        return f"{text} ({fmt(row.published, decimals)})" if has_published else text
-
-    cells = [cell(r) for r in frame.itertuples()]
+    # A cell: ours (published), "absent", or the paper's own average alone (value "").
+    paper = frame.published.map(lambda v: fmt(v, decimals))
+    ours = frame.value.map(lambda v: v if isinstance(v, str) else f"{v:.{decimals}f}")
+    mixed = ours + " (" + paper + ")" if has_published else ours
+    cells = mixed.where(~frame.value.isin(["absent", ""]), ours.where(ours != "", paper))
     frame = frame.assign(cell=cells, action=frame.action.map(lambda a: names.get(a, a)))
     wide = frame.pivot(index="action", columns="ms", values="cell")
-    wide = wide.reindex(list(dict.fromkeys(frame.action)))
-    wide.columns = [f"{ms} ms" for ms in wide.columns]
+    wide = wide.reindex(list(dict.fromkeys(frame.action))).rename(columns=lambda ms: f"{ms} ms")
     lines = [f"**{table['title']}**: {table['metric']} ({table['unit']})", ""]
     lines += [markdown(wide.reset_index()), ""]
     if has_published:
