@@ -70,9 +70,8 @@ def published_table(paper: str, table: int | None, dataset: str, method: str) ->
 
 
 def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
-    """(values, "<paper> <method>") of a model config's `published` entry ({paper, method[,
-    table]}, or one such per dataset) for results on `dataset`; (None, None) where no paper has
-    numbers. Synthetic data, in the H3.6M format, never gets H3.6M's numbers."""
+    """(values, "<paper> <method>") of a model's `published` ({paper, method[, table]}, or one per
+    dataset) on `dataset`, else (None, None): synthetic data never gets H3.6M's numbers."""
     ref = (ref or {}).get(dataset, ref)
     if dataset in published_datasets() and isinstance(ref, dict) and "paper" in ref:
         with contextlib.suppress(ReportingError):

@@ -20,10 +20,8 @@ def add_error_curve_layout(writer, actions: list[str], horizons) -> None:
 
 
 def validation_curve(run: Path) -> dict[int, dict[int, float]]:
-    """{iterations done: {ms: average Euler error over the evaluated actions}} at each
-    validation of the run folder, from its TensorBoard events; {} without them. A validation is
-    logged at the step of the last iteration before it (steps count from 0), so after `step + 1`
-    iterations; tests/test_train.py checks this against a short run."""
+    """{iterations done: {ms: average Euler error}} at each validation, from TensorBoard ({}
+    without): logged at the step of the iteration before it (from 0), so after `step + 1`."""
     folder = Path(run) / "tensorboard"
     if not any(folder.glob("events.out.tfevents.*")):
         return {}
