@@ -2,15 +2,16 @@
 
     python -m src.report runs=[<new runs>] records=docs/runs out=docs/results.md readme=README.md
 
-Each run's best and last checkpoints and the baselines are evaluated here as src.eval does, on
-each protocol; every number on the page comes from those evaluations, the records of runs
-evaluated before (records=DIR, where each run evaluated here is recorded) and the papers.
+Each run's best and last checkpoints and the baselines are evaluated as src.eval does, on each
+protocol; every number on the page comes from those evaluations, the records of runs evaluated
+before (records=DIR, where each run evaluated here is recorded) and the papers.
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import itertools
 import json
 import os
 import re
@@ -43,15 +44,13 @@ def evaluate(overrides: list[str], out_dir: Path) -> dict:
 def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
     checkpoints, iterations = run["checkpoints"], run["iterations_of"]
     name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
-    same = checkpoints["last"] == checkpoints["best"]
-    run["results"] = {"best": {}}
-    if same or (iterations["best"] is not None and iterations["best"] == iterations["last"]):
-        run["results"]["last"] = run["results"]["best"]
-        # One file for both means one was missing (find_checkpoints said which), not that the
-        # error was lowest at the end.
-        run["notes"] += [] if same else ["best = last (lowest error at the final validation)"]
-    else:
-        run["results"]["last"] = {}
+    same, best = checkpoints["last"] == checkpoints["best"], {}
+    one = same or (iterations["best"] is not None and iterations["best"] == iterations["last"])
+    run["results"] = {"best": best, "last": best if one else {}}
+    # One file for both means one was missing (find_checkpoints said which), not that the error
+    # was lowest at the end.
+    if one and not same:
+        run["notes"].append("best = last (lowest error at the final validation)")
     for selection, results in run["results"].items():
         for protocol in protocols if not results else ():
             print(f"evaluating {run['path']} ({selection}, {protocol})", flush=True)
@@ -64,19 +63,16 @@ def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> Non
 
 def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
     baselines = []
-    for dataset in datasets:
-        for model in BASELINES:
-            entry = {"label": model, "dataset": dataset, "commit": commit, "results": {}}
-            for protocol in protocols:
-                print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
-                overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
-                result = evaluate(
-                    [*overrides, "data.allow_partial=true"],
-                    work / "baselines" / "_".join((model, dataset, protocol)),
-                )
-                entry["results"][protocol] = result
-                entry["missing_files"] = result["provenance"]["missing_files"]
-            baselines.append(entry)
+    for dataset, model in itertools.product(datasets, BASELINES):
+        results = {}
+        for protocol in protocols:
+            print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
+            overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
+            folder = work / "baselines" / f"{model}_{dataset}_{protocol}"
+            results[protocol] = evaluate([*overrides, "data.allow_partial=true"], folder)
+        missing = results[protocol]["provenance"]["missing_files"]
+        entry = {"label": model, "dataset": dataset, "commit": commit, "results": results}
+        baselines.append(entry | {"missing_files": missing})
     return baselines
 
 

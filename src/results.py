@@ -1,7 +1,5 @@
 """src.eval's work: a baseline, a trained checkpoint or a file of predictions (src/scoring.py),
-tested as a MotionPredictor; the tables in src/reporting/tables.py's format, which its
-`read_results` reads back for src.plot_errors and src.report.
-"""
+tested as a MotionPredictor; the tables in src/reporting/tables.py's format."""
 
 import json
 import time
@@ -19,8 +17,8 @@ from src.scoring import score_predictions
 
 
 def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
-    """The Euler and MPJPE tables of an evaluation on `dataset` (the data config's name, e.g.
-    "synthetic": published numbers stand only beside results on their own dataset)."""
+    """The Euler and MPJPE tables of an evaluation on `dataset` (the data config's name:
+    published numbers stand only beside results on their own dataset, never on "synthetic")."""
     published, label = published_for(model_cfg.get("published"), dataset)
     where = f"{model_cfg['name']} on {dataset} ({dm.eval_protocol} protocol, "
     where += f"{len(dm.eval_windows)} windows)"
@@ -30,10 +28,11 @@ def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
         ("euler", "Euler-angle error", "rad"),
         ("mpjpe", "Mean per-joint position error", mm),
     ):
-        values = module.last_results[metric]
-        values = results_from_metric(values, dm.actions, dm.frame_ms, dm.absent_actions)
-        paper = published if metric == "euler" else None
-        args = (dm.actions, module.horizons, values, dm.absent_actions, paper, label)
+        values = results_from_metric(
+            module.last_results[metric], dm.actions, dm.frame_ms, dm.absent_actions
+        )
+        paper = (published, label) if metric == "euler" else (None, None)
+        args = (dm.actions, module.horizons, values, dm.absent_actions, *paper)
         tables.append(result_table(f"{title}: {where}", metric, unit, *args))
     return tables
 
@@ -42,7 +41,6 @@ def evaluate(cfg: DictConfig) -> dict:
     check(cfg, "eval")
     L.seed_everything(cfg.seed, workers=True)
     start = time.perf_counter()
-    # A file of predictions from any code (src/scoring.py) is tested as a model is.
     dm, module = (score_predictions if cfg.get("predictions") else build_for_evaluation)(cfg)
     model_cfg = module.run_info["config"]["model"]
     dataset = module.run_info["config"]["data"]["name"]

@@ -1,11 +1,8 @@
-"""Li et al.'s ablation claims (section 4.3; Tables 5 and 6, Figure 4; listed in references.json)
-beside what our runs show: each claim is pairs of experiments, "changed minus base", and the
-expected sign of that difference in average Euler error at its horizons. Our differences (mean
-over the seeds of each side), on every protocol and checkpoint, are marked where they are within
-the seed spread of li2018_h36m (largest minus smallest seed average): one seed per ablation
-cannot tell those apart. li2018_h36m_C20 is li2018_h36m's configuration under another run_name:
-where their configs differ only in run_name, the C = 20 points are li2018_h36m's (several
-seeds), and its own run is checked against li2018_h36m's of its seed.
+"""Li et al.'s ablation claims (section 4.3, Tables 5-6, Figure 4; references.json) beside ours:
+pairs of experiments, "changed minus base", and the expected sign of that difference at the
+claim's horizons. Ours (mean over each side's seeds) are marked where within li2018_h36m's seed
+spread, which one seed per ablation cannot tell apart. li2018_h36m_C20 is li2018_h36m's config
+under another run_name: then the C = 20 points are li2018_h36m's, its run checked against them.
 """
 
 from __future__ import annotations
@@ -14,15 +11,14 @@ from types import SimpleNamespace
 
 from src.reporting.frame import HORIZONS, SELECTIONS, Results, ms_list, signed
 from src.reporting.published import REFERENCES, published_frame
-from src.reporting.tables import AVERAGE, markdown
+from src.reporting.tables import AVERAGE, fmt, markdown
 
 FULL, C20 = "li2018_h36m", "li2018_h36m_C20"
 SHORT_PROTOCOLS = {"srnn": "8 windows", "random": "256 windows"}
 
 
 def claims() -> list[SimpleNamespace]:
-    """The claims, each pair with the paper's {ms: changed - base} (or None), the text's
-    numbers filled in from Tables 5 and 6."""
+    """The claims, each pair with the paper's {ms: changed - base} or None, numbers filled in."""
     f = published_frame()
     f = f[(f.paper == "li2018") & f.table.isin([5, 6]) & (f.action == AVERAGE)]
     printed = {k: r.set_index("ms").value.sort_index() for k, r in f.groupby(["table", "method"])}
@@ -40,8 +36,7 @@ def claims() -> list[SimpleNamespace]:
 
 def _differences(a, b) -> list[str]:
     """What two groups' configs differ in (run_name aside): `key a vs b`, sections in one only."""
-    ia = {k: v for k, v in a.ident.items() if k != "run_name"}
-    ib = {k: v for k, v in b.ident.items() if k != "run_name"}
+    ia, ib = ({k: v for k, v in g.ident.items() if k != "run_name"} for g in (a, b))
     out = [f"{k} {ia[k]} vs {ib[k]}" for k in sorted(ia.keys() & ib.keys()) if ia[k] != ib[k]]
     for mine, theirs, who in ((ia, ib, a), (ib, ia, b)):
         sections = sorted({k.split(".")[0] for k in mine.keys() - theirs.keys()})
@@ -71,10 +66,8 @@ def _verdict(claim, delta: dict[int, float], spread: dict[int, float] | None) ->
     if spread is None:  # +0.00 has no direction a reader can see: named, not counted
         zero = [ms for ms in horizons if round(delta[ms], 2) == 0]
         same = sum(1 for ms in horizons if delta[ms] > 0 and ms not in zero)
-        text = f"same direction at {same} of {len(horizons)}"
-        return (
-            text + (f", 0.00 at {ms_list(zero)}" if zero else "") + " (no seed spread to judge by)"
-        )
+        zero = f", 0.00 at {ms_list(zero)}" if zero else ""
+        return f"same direction at {same} of {len(horizons)}{zero} (no seed spread to judge by)"
     if against := [ms for ms in opposite if ms in clear]:
         return f"disagrees: opposite beyond the spread at {ms_list(against)}"
     if not opposite and len(clear) == len(horizons):
@@ -124,16 +117,8 @@ def _c20_line(full, c20, protocols: list[str]) -> str:
     return text
 
 
-def _cell(delta: dict, spread: dict | None, ms: int) -> str:
-    if ms not in delta:
-        return "-"
-    within = spread is not None and abs(delta[ms]) <= spread.get(ms, 0)
-    return f"({signed(delta[ms])})" if within else signed(delta[ms])
-
-
 def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list, str | None]:
-    """The rows of one pair (the paper's, then ours on each protocol and checkpoint, or "not
-    trained") and the note naming the settings the two differ in."""
+    """The rows of a pair (the paper's, ours or "not trained") and what the two differ in."""
     changed_name, base_name, paper = pair
     name = lambda n: n if n == FULL else n.removeprefix("li2018_h36m_")  # noqa: E731
     label = f"{name(changed_name)} − {name(base_name)}"
@@ -154,7 +139,10 @@ def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list,
         for s in SELECTIONS:
             a, b, gap = results.means(changed, p, s), results.means(base, p, s), spread[p, s]
             delta = {ms: a[ms] - b[ms] for ms in HORIZONS if ms in a and ms in b}
-            cells = [_cell(delta, gap, ms) for ms in HORIZONS]
+            # A difference within the seed spread is printed in parentheses.
+            within = {ms for ms in delta if gap is not None and abs(delta[ms]) <= gap.get(ms, 0)}
+            cells = [signed(delta[ms]) if ms in delta else "-" for ms in HORIZONS]
+            cells = [f"({c})" if ms in within else c for c, ms in zip(cells, HORIZONS, strict=True)]
             rows.append([first, SHORT_PROTOCOLS.get(p, p), s, *cells, _verdict(claim, delta, gap)])
             first = ""
     differ = _differences(changed, base)
@@ -166,8 +154,7 @@ def _pair(results: Results, claim, pair, full, protocols, spread) -> tuple[list,
 
 
 def claims_section(results: Results, protocols: list[str], heading: str) -> list[str]:
-    """The section; [] unless li2018_h36m and an ablation to compare it with were trained. A
-    claim none of whose pairs was trained is left out."""
+    """The section, [] unless li2018_h36m and an ablation were trained; a claim once a pair is."""
     ablations = [g for g in results.groups if g.ablation and g.dataset == "h36m"]
     full = _nearest(results.groups, FULL, ablations[0] if ablations else None)
     if full is None or not ablations:
@@ -178,18 +165,14 @@ def claims_section(results: Results, protocols: list[str], heading: str) -> list
     for claim in claims():
         pairs = [_pair(results, claim, pair, full, protocols, spread) for pair in claim.pairs]
         if notes := [note for _, note in pairs if note]:  # a pair was trained
-            table = markdown(
-                [r for rows, _ in pairs for r in rows], [*columns, "against the claim"]
-            )
+            table = [r for rows, _ in pairs for r in rows]
+            table = markdown(table, [*columns, "against the claim"])
             shown += [f"### {claim.title}", "", claim.text, "", table, "", *notes, ""]
     if not shown:
         return []
     rows = [
         [f"seed spread of {full.label}", SHORT_PROTOCOLS.get(p, p), s]
-        + [
-            f"{spread[p, s][ms]:.2f}" if spread[p, s] and ms in spread[p, s] else "-"
-            for ms in HORIZONS
-        ]
+        + [fmt((spread[p, s] or {}).get(ms)) for ms in HORIZONS]
         for p in protocols
         for s in SELECTIONS
     ]

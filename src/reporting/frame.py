@@ -1,18 +1,13 @@
-"""Every evaluation as one long table, and what the results page concludes from it.
-
-`Results.frame` has a row per run, protocol, checkpoint ("-" for a baseline), metric, action
-and horizon; g is the row's group in `Results.entries` (the trained groups, then the
-baselines), value is NaN where the action is absent (`absent` says why), and trained is False
-for an action this data copy has no training file of. A cell of the page is the mean ± std
-(n - 1) over the seeds of each seed's average over the actions.
-
-A group is judged against one published reference: the model's own paper, unless its same-set
-average includes a known slip of the paper and another reference's does not. The judged average
-leaves out the actions without training files (CMU washwindow).
+"""Every evaluation as one long table (`Results.frame`: a row per run, protocol, checkpoint, metric,
+action, horizon; value NaN where absent, trained False without training files), and what the page
+concludes from it: a cell is the mean ± std (n - 1) over the seeds of each seed's average over the
+actions; a group is judged against its paper's same-set average, over the actions with training
+files, or another reference's where its paper's includes a known slip.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from typing import NamedTuple
 
@@ -35,8 +30,7 @@ KEYS = ["g", "protocol", "checkpoint", "metric"]
 
 
 class Reference(NamedTuple):
-    """A published source: key "<paper> <method>", {action: {ms: value}} (with the paper's own
-    "average" where printed), and what it is where its name does not say."""
+    """key "<paper> <method>", {action: {ms: value}} with the paper's "average" where printed."""
 
     key: str
     published: dict
@@ -49,8 +43,7 @@ class Reference(NamedTuple):
 
 
 class Judgement(NamedTuple):
-    """ "reproduces", "misses", "not judged" (an average only is published) or "-" (nothing
-    published, or no target); the reference, why that one; the horizons missed per checkpoint."""
+    """A status ("reproduces", "misses", "not judged", "-"), the reference, why, horizons missed."""
 
     status: str
     reference: Reference | None = None
@@ -143,36 +136,33 @@ class Results:
                                     yield (*key, t["metric"], action, int(ms), value, *tail)
 
     def actions(self, group: Group, judged: bool = True) -> list[str]:
-        """The evaluated actions; judged: those this copy has training files of."""
+        """The evaluated actions (judged: those this copy has training files of)."""
         gone = self.untrained.get(group.dataset, set()) if judged else set()
         return [a for a in self.evaluated.get(self._g[group], []) if a not in gone]
 
     def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
-        """The seeds' averages grouped by horizon; None where there are none."""
-        try:
-            seeds = self._seeds[judged].loc[(self._g[group], protocol, checkpoint, metric)]
-        except KeyError:
-            return None
-        return seeds.groupby(level="horizon")
+        """Each seed's average over the (judged) actions, by horizon; None where there is none."""
+        key = (self._g[group], protocol, checkpoint, metric)
+        with contextlib.suppress(KeyError):
+            return self._seeds[judged].loc[key].groupby(level="horizon")
 
     def average(self, group, protocol, checkpoint, metric="euler", judged=False) -> dict:
-        """{ms: (mean, std, n)} over the seeds of their averages over the evaluated actions
-        (judged: those with training files); {} where there is none."""
+        """{ms: (mean, std, n)} over the seeds; {} where there is none."""
         by_ms = self._by_horizon(group, protocol, checkpoint, metric, judged)
         return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms or ()}
 
     def means(self, group, protocol, checkpoint, judged=False) -> dict[int, float]:
-        average = self.average(group, protocol, checkpoint, judged=judged)
-        return {ms: mean for ms, (mean, _, _) in average.items()}
+        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
+        return {int(ms): v.mean() for ms, v in by_ms or ()}
 
     def spread(self, group, protocol, checkpoint, judged=False) -> dict[int, float] | None:
         """The largest minus the smallest of the seeds' Euler averages; None for one seed."""
         by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
-        if by_ms is None or by_ms.size().max() < 2:
-            return None
-        return (by_ms.max() - by_ms.min()).to_dict()
+        if by_ms is not None and by_ms.size().max() > 1:
+            return (by_ms.max() - by_ms.min()).to_dict()
 
     def _references(self, group: Group) -> list[Reference]:
+        """Its published references on its dataset, the model's own paper first."""
         ref = REFERENCES["experiment_published"].get(group.run_name, "-")
         if ref == "-":  # the one its evaluation printed beside ours
             paper, _, method = (_euler(group).get("published_label") or "").partition(" ")
@@ -185,7 +175,6 @@ class Results:
         return refs
 
     def references(self, group: Group) -> list[Reference]:
-        """Its published references on its dataset, the model's own paper first."""
         return self._refs[group]
 
     def same_set(self, group: Group, reference: Reference) -> dict[int, float]:
@@ -193,18 +182,14 @@ class Results:
         return same_set_average(reference.published, self.actions(group), HORIZONS)
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
-        """{checkpoint: horizons where its judged average is beyond `target` of the reference's
-        same-set average, at the printed precision}."""
-        same = self.same_set(group, reference)
-        ours = {s: self.means(group, protocol, s, judged=True) for s in SELECTIONS}
-        return {
-            s: [
-                ms
-                for ms in HORIZONS
-                if ms in same and ms in ours[s] and abs(printed_gap(ours[s][ms], same[ms])) > target
+        """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""
+        same, out = self.same_set(group, reference), {}
+        for s in SELECTIONS:
+            ours = self.means(group, protocol, s, judged=True)
+            out[s] = [
+                ms for ms in same if ms in ours and abs(printed_gap(ours[ms], same[ms])) > target
             ]
-            for s in SELECTIONS
-        }
+        return out
 
     def reference(self, group: Group) -> tuple[Reference | None, str]:
         """The reference a group is judged against, and why that one."""
@@ -227,8 +212,7 @@ class Results:
         return Judgement("misses" if any(missed.values()) else "reproduces", chosen, why, missed)
 
     def validation_means(self, group: Group, protocol: str) -> dict[int, dict[int, float]]:
-        """{iterations: {ms: mean over seeds}} of the average Euler error at the validations
-        every seed made; {} when a run has none or validated on another protocol."""
+        """{iterations: {ms: mean over the seeds}} at the validations every seed made, else {}."""
         curves = [r.get("validations") or {} for r in group.runs]
         protocols = {r["config"]["data"].get("eval_protocol", "srnn") for r in group.runs}
         if not all(curves) or protocols != {protocol}:
@@ -240,8 +224,7 @@ class Results:
         return out
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
-        """Where a judged row misses most: the actions that carry the gap, the seed spread
-        against it, and what was compared with the reference code."""
+        """Where a judged row misses most, the actions that carry it, the seed spread beside it."""
         ref, actions = judgement.reference, self.actions(group)
         same = self.same_set(group, ref)
         gaps = {

@@ -1,8 +1,6 @@
-"""The page's rows: runs of one experiment (run_name), dataset and configuration, which differ
-only in their seed. Runs of one configuration and seed (a run and a sweep job, a copy, the
-earlier segments of a resumed run) are one seed: the longest-trained is kept, the group says
-whether each other is a copy or a segment.
-"""
+"""The page's rows: runs of one experiment (run_name), dataset and configuration, differing only
+in their seed. Runs of one configuration and seed (a run and a sweep job, a copy, a resumed
+run's earlier segments) are one seed: the longest-trained is kept, the others named."""
 
 from __future__ import annotations
 
@@ -18,10 +16,8 @@ from src.lit.resume import COMPUTES
 # draws other masks than eager, like another seed), and where a resumed run came from.
 IGNORED_KEYS = "seed data.seed ckpt_path resume checkpoint_every media_every progress_every_s "
 IGNORED_KEYS = set((IGNORED_KEYS + "task_name").split())
-IGNORED_PREFIXES = tuple(
-    "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive data.num_workers "
-    "data.eval_batch_size".split()
-)
+IGNORED_PREFIXES = "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive "
+IGNORED_PREFIXES = tuple((IGNORED_PREFIXES + "data.num_workers data.eval_batch_size").split())
 BUDGET_KEYS = {"iterations", "val_every"}  # the budget has a column of its own
 # Settings named in words in a label when on (the paper's behaviour is off); any other setting
 # that tells two groups of one experiment apart is shown as `leaf=value`.
@@ -29,10 +25,8 @@ SETTING_NAMES = {
     "model.net.reference_eta_offset": "reference-code switches",
     "adversarial.reference_fake_slot": "reference-code switches",
 }
-ABLATIONS = [
-    f"li2018_h36m_{n}"
-    for n in "no_long_term kernel_4x4 kernel_7x2 C5 C5_no_adv C10 C10_no_adv C20 C20_no_adv".split()
-]
+ABLATIONS = "no_long_term kernel_4x4 kernel_7x2 C5 C5_no_adv C10 C10_no_adv C20 C20_no_adv"
+ABLATIONS = [f"li2018_h36m_{n}" for n in ABLATIONS.split()]
 
 
 def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
@@ -46,8 +40,7 @@ def _flatten(config: dict, prefix: str = "") -> dict[str, str]:
 
 
 def identity(config: dict) -> dict[str, str]:
-    """The config less seed, paths, device, logging (trainer keys that change the numbers,
-    such as precision, stay)."""
+    """The config less seed, paths, device, logging (trainer keys that change numbers stay)."""
     return {
         k: v
         for k, v in _flatten(config).items()
@@ -61,8 +54,7 @@ def seed_of(run: dict):
 
 @dataclass(eq=False)  # a group is itself: hashed and compared by identity
 class Group:
-    """Runs of one experiment, dataset and budget differing only in their seed. settings: what
-    tells it from its experiment's other groups; left_out: why identical runs count once."""
+    """settings: what tells it from its experiment's other groups; left_out: runs counted once."""
 
     label: str
     run_name: str
@@ -85,31 +77,23 @@ class Group:
         return self.run_name in ABLATIONS
 
 
-def _segments_before(run: dict, members: list[dict]) -> set[str]:
-    """The folders of the runs a resumed run continues (its absolute ckpt_path's, and so on)."""
-    by_folder = {m["folder"]: m for m in members if m.get("folder")}
-    found: set[str] = set()
-    while (ckpt := run["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
-        folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
-        stop = folder in found or folder not in by_folder
-        found.add(folder)
-        if stop:
-            break
-        run = by_folder[folder]
-    return found
-
-
 def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
-    """One run per seed (the longest-trained, then a finished one, then the first given), a
-    resumed run's validation curve joined over its segments, and a line per run left out."""
+    """One run per seed (longest-trained, finished, first given), a line per run left out."""
     rank = lambda r: (r.get("iterations") or 0, bool(r.get("finished", True)))  # noqa: E731
     kept: dict = {}
     for run in members:
         if rank(run) > rank(kept.setdefault(seed_of(run), run)):
             kept[seed_of(run)] = run
-    lines = []
+    lines, by_folder = [], {m["folder"]: m for m in members if m.get("folder")}
     for seed, run in kept.items():
-        segments = _segments_before(run, members)
+        segments, before = set(), run  # the folders of the runs a resumed run continues
+        while (ckpt := before["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
+            folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
+            stop = folder in segments or folder not in by_folder
+            segments.add(folder)
+            if stop:
+                break
+            before = by_folder[folder]
         earlier = [m for m in members if m.get("folder") in segments]
         if earlier and "validations" in run:  # each segment's folder logged its own part
             curve = {
@@ -144,20 +128,16 @@ def _seed_order(seed) -> tuple:
 
 
 def _short_label(run_name: str, settings: dict) -> str:
-    words = []
-    for key, value in settings.items():
-        if key in SETTING_NAMES:
-            word = SETTING_NAMES[key] if value not in (None, False) else None
-        else:
-            word = None if value is None else f"{key.rsplit('.', 1)[-1]}={value}"
-        if word and word not in words:
-            words.append(word)
-    return ", ".join([run_name, *words])
+    words = [
+        SETTING_NAMES.get(k, f"{k.rsplit('.', 1)[-1]}={v}")
+        for k, v in settings.items()
+        if (v not in (None, False) if k in SETTING_NAMES else v is not None)
+    ]
+    return ", ".join([run_name, *dict.fromkeys(words)])
 
 
 def group_runs(runs: list[dict]) -> list[Group]:
-    """Groups in the page's order: H3.6M, CMU, other data (the papers' order), Li et al.'s
-    ablations last, an experiment's budgets together, the longest first; else as given."""
+    """In the page's order: H3.6M, CMU, other data, ablations last, longest budget first."""
     by_key: dict[tuple, list[dict]] = {}
     for run in runs:
         config = run["config"]
@@ -193,8 +173,7 @@ def group_runs(runs: list[dict]) -> list[Group]:
 
 
 def parse_notes(items: list[str], groups: list[Group]) -> dict[str, str]:
-    """{label: text} of `LABEL=TEXT` items, LABEL a group's short or full label; as one may
-    hold '=' ("m (data.future_len=10)"), the longest label the item starts with wins."""
+    """{label: text} of `LABEL=TEXT` items; the longest label wins, as one may hold '='."""
     names = {g.full_label: g.label for g in groups} | {g.label: g.label for g in groups}
     notes = {}
     for item in items:

@@ -1,23 +1,14 @@
-"""The headline of the results page, also the README's Results block: every trained experiment
-at each budget, ours at the best and last checkpoints with the published same-set averages and
-ours minus them, the verdict, the zero-velocity yardstick, why a row misses; and the figures.
-"""
+"""The headline of the results page, also the README's Results block: each trained experiment
+and budget, ours (best, last) beside the published same-set averages and ours minus them, the
+verdict, the zero-velocity yardstick, why a row misses; and the figures."""
 
 from __future__ import annotations
 
 import datetime as dt
 
+import src.reporting.frame as fr
 from src.plots import Curve, line_panels
-from src.reporting.frame import (
-    HORIZONS,
-    PROTOCOLS,
-    SELECTIONS,
-    Results,
-    ms_list,
-    printed_gap,
-    signed,
-    stat,
-)
+from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTIONS, Results
 from src.reporting.published import REFERENCES, known_slips
 from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
 
@@ -30,7 +21,7 @@ TITLES = (
 
 
 def stat_cells(average: dict, decimals: int = 2) -> list[str]:
-    return [stat(*average[ms], decimals) if ms in average else "-" for ms in HORIZONS]
+    return [fr.stat(*average[ms], decimals) if ms in average else "-" for ms in HORIZONS]
 
 
 def span(values) -> str:
@@ -50,37 +41,32 @@ def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
 
 
 def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
-    """(label, cells, verdict): the reference's same-set average with ours minus it (best,
-    last), and where that is beyond the target."""
+    """(label, cells, verdict): the same-set average, ours minus it, where beyond the target."""
     actions, same = results.actions(group), results.same_set(group, ref)
+    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
     if not same:
         cells = [fmt(ref.published.get(AVERAGE, {}).get(ms)) for ms in HORIZONS]
         return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
     name = f"{ref.name}, {len(actions)} actions"
     if slips := known_slips(ref.key, actions):
         name += f" incl. slips ({', '.join(slips)})"
-    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
-    gaps = lambda ms: ", ".join(signed(printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS)  # noqa: E731
-    cells = [f"{same[ms]:.2f} ({gaps(ms)})" if ms in same else "-" for ms in HORIZONS]
-    if target is None:
-        return name, cells, "-"
-    missed = results.missed(group, protocol, ref, target)
-    if not any(missed.values()):
-        return name, cells, f"within {target:.2f}"
+    gaps = {
+        ms: [fr.signed(fr.printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS] for ms in same
+    }
+    cells = [f"{same[ms]:.2f} ({', '.join(gaps[ms])})" if ms in same else "-" for ms in HORIZONS]
+    missed = results.missed(group, protocol, ref, target) if target is not None else {}
+    if target is None or not any(missed.values()):
+        return name, cells, "-" if target is None else f"within {target:.2f}"
     if missed["best"] == missed["last"]:
-        return name, cells, f"beyond {target:.2f} at {ms_list(missed['best'])}"
-    where = "; ".join(f"{s} {ms_list(missed[s])}" for s in SELECTIONS if missed[s])
+        return name, cells, f"beyond {target:.2f} at {fr.ms_list(missed['best'])}"
+    where = "; ".join(f"{s} {fr.ms_list(missed[s])}" for s in SELECTIONS if missed[s])
     return name, cells, f"beyond {target:.2f}: {where}"
 
 
 def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
     """(table, footnotes, why-rows-miss lines) of the headline."""
-    rows, notes = [], []
-
-    def mark(text: str) -> str:
-        if text not in notes:
-            notes.append(text)
-        return str(notes.index(text) + 1).translate(SUPERSCRIPTS)
+    rows, notes = [], {}  # footnote -> its number
+    mark = lambda text: str(notes.setdefault(text, len(notes) + 1)).translate(SUPERSCRIPTS)  # noqa: E731
 
     groups = headline_groups(results)
     judged = verdicts(results, groups, protocol, targets)
@@ -99,24 +85,18 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
         j, verdict = judged.get(group), "shorter budget"
         if j is not None and j.status == "not judged":
             verdict = f"not judged ({j.why})"
-        elif j is not None and j.reference is None:
-            verdict = j.status
         elif j is not None:
-            verdict = f"**{j.status}**, judged against {j.reference.name}"
-            if len(results.references(group)) > 1:
-                about = f" ({j.reference.about})" if j.reference.about else ""
-                verdict += mark(
-                    f"{group.label}: judged against {j.reference.name}{about}: {j.why}."
-                )
-        for s in SELECTIONS:
-            first = (label, group.dataset) if s == "best" else ("", "")
-            cells = stat_cells(results.average(group, protocol, s, judged=True))
-            rows.append([*first, budget, f"ours, {s}", n, *cells, verdict if s == "best" else ""])
-        for s in SELECTIONS if untrained else ():
-            cells = stat_cells(results.average(group, protocol, s))
-            rows.append(
-                ["", "", budget, f"ours, {s}, all {len(everything)} actions", n, *cells, ""]
-            )
+            ref = j.reference
+            verdict = j.status if ref is None else f"**{j.status}**, judged against {ref.name}"
+            if ref is not None and len(results.references(group)) > 1:
+                about = f" ({ref.about})" if ref.about else ""
+                verdict += mark(f"{group.label}: judged against {ref.name}{about}: {j.why}.")
+        for all_actions in (False, True) if untrained else (False,):
+            for s in SELECTIONS:
+                first = (label, group.dataset) if (s, all_actions) == ("best", False) else ("", "")
+                what = f"ours, {s}" + f", all {len(everything)} actions" * all_actions
+                cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
+                rows.append([*first, budget, what, n, *cells, "" if first[0] == "" else verdict])
         for ref in results.references(group):
             name, cells, text = _reference_row(
                 results, group, ref, protocol, targets.get(group.dataset)
@@ -129,7 +109,7 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             cells = stat_cells(results.average(zero[0], protocol, "-", judged=True))
             what = f"baseline, {len(results.actions(zero[0]))} actions"
             rows.append(["zero-velocity", group.dataset, "-", what, "-", *cells, "the yardstick"])
-    footnotes = [f"{str(k + 1).translate(SUPERSCRIPTS)} {t}" for k, t in enumerate(notes)]
+    footnotes = [f"{str(k).translate(SUPERSCRIPTS)} {t}" for t, k in notes.items()]
     ablations = [g for g in results.groups if g.ablation]
     if link and ablations and len(groups) < len(results.groups):
         footnotes.append(
@@ -175,9 +155,8 @@ def readme_block(results, protocol, commit, targets, figure=None, page="docs/res
 
 
 def figures(results: Results, protocol: str):
-    """(error against horizon, a panel per dataset: ours best with its ± band and last dotted,
-    the published same-set averages dashed; validation error at 400 and 1000 ms against
-    iteration, a panel per headline experiment, the published values as lines)."""
+    """(error against horizon, a panel per dataset; validation error at 400 and 1000 ms against
+    iteration, a panel per experiment), the published values dashed."""
     horizon: dict[str, list[Curve]] = {}
     validation = []
     for k, group in enumerate(headline_groups(results)):

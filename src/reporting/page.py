@@ -1,35 +1,24 @@
-"""The results page (docs/results.md), its per-action CSV files and figures, and the README's
-Results block: the headline (headline.py), the budget, how to read the numbers, the ablation
-claims (claims.py), provenance, the averages of each protocol and metric, the CSVs, the command.
-What the numbers mean is decided in frame.py.
-"""
+"""The results page (docs/results.md), its per-action CSVs and figures, and the README's block:
+the headline (headline.py), budget, how to read it, ablation claims (claims.py), provenance, the
+averages of each protocol and metric, the CSVs, the command. The numbers are frame.py's."""
 
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import os
 from pathlib import Path
 
+import src.reporting.headline as hl
 from src.lit.factory import ConfigError
 from src.reporting.claims import claims_section
 from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTION_LABELS, SELECTIONS, Results
-from src.reporting.headline import (
-    COLS,
-    figures,
-    headline,
-    headline_groups,
-    readme_block,
-    span,
-    stat_cells,
-    verdicts,
-)
 from src.reporting.published import known_slips
 from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
 
 
 def replace_block(path: Path, name: str, text: str | None = None) -> None:
-    """Replace what lies between `<!-- name:start -->` and `<!-- name:end -->` in `path`
-    (text=None: only check that the markers are there)."""
+    """Put `text` between `path`'s `<!-- name:start -->` and `<!-- name:end -->` (None: check)."""
     start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
     content = Path(path).read_text() if Path(path).is_file() else ""
     if start not in content or end not in content.split(start, 1)[-1]:
@@ -51,19 +40,16 @@ def _wall_time(run: dict) -> str:
 def provenance_table(results: Results) -> str:
     rows = []
     for group in results.entries:
-        trained = group.kind == "trained"
         for r in group.runs:
             missing, commit = len(r.get("missing_files") or []), r.get("commit") or "-"
             row = [f"{group.label} ({group.kind})", "-", "-", commit, "-", "-", "-"]
-            if trained:
-                row = [
-                    group.label,
-                    str(r["seed"]),
-                    f"`{r['path']}`",
-                    commit,
+            if group.kind == "trained":
+                row[:3] = group.label, str(r["seed"]), f"`{r['path']}`"
+                row[4:] = (
                     f"{group.iterations:,}",
-                ]
-                row += [span([r["iterations_of"]["best"]]), _wall_time(r)]
+                    hl.span([r["iterations_of"]["best"]]),
+                    _wall_time(r),
+                )
             row += [r.get("device") or "-", r.get("archive_sha256", "-")]
             row += [f"{missing} (see above)" if missing else "none"]
             rows.append([*row, "; ".join(r.get("notes", [])) or "-"])
@@ -73,17 +59,16 @@ def provenance_table(results: Results) -> str:
 
 
 def averages_table(results: Results, protocol: str, metric: str, published: bool) -> str:
-    """Every group's average over its evaluated actions, best and last; with `published`, each
-    reference's same-set average and its own as printed."""
+    """Each group's averages, best and last; `published`: each reference's, same-set and printed."""
     decimals, rows = (2 if metric == "euler" else 1), []
     for group in results.entries:
         trained, last = group.kind == "trained", f"{group.iterations:,}"
-        best = f"{span(r.get('iterations_of', {}).get('best') for r in group.runs)} of {last}"
+        best = f"{hl.span(r.get('iterations_of', {}).get('best') for r in group.runs)} of {last}"
         for s in SELECTIONS if trained else ("-",):
             n, budget = str(len(group.runs)), best if s == "best" else last
             row = [group.label, group.dataset, SELECTION_LABELS.get(s, "-")]
             row += [n, budget] if trained else ["-", "-"]
-            rows.append(row + stat_cells(results.average(group, protocol, s, metric), decimals))
+            rows.append(row + hl.stat_cells(results.average(group, protocol, s, metric), decimals))
         evaluated = results.actions(group, judged=False)
         for ref in results.references(group) if published and metric == "euler" else ():
             slips = known_slips(ref.key, evaluated)
@@ -98,12 +83,11 @@ def averages_table(results: Results, protocol: str, metric: str, published: bool
                 label = f"{group.label}: published ({ref.key}), {what}"
                 cells = [fmt(values.get(ms)) for ms in HORIZONS]
                 rows += [[label, group.dataset, "paper", "-", "paper", *cells]] if values else []
-    return markdown(rows, ["experiment", "dataset", "checkpoint", "n", "iterations", *COLS])
+    return markdown(rows, ["experiment", "dataset", "checkpoint", "n", "iterations", *hl.COLS])
 
 
 def per_action_csv(results: Results, protocol: str, metric: str) -> str:
-    """Every group's per-action table as CSV: mean and std (n - 1) over the seeds and the
-    published value at each horizon; a note where an action is absent or untrained."""
+    """Each group's per-action mean, std (n - 1) and published value; why an action is absent."""
     f = results.frame[(results.frame.protocol == protocol) & (results.frame.metric == metric)]
     keys = ["g", "checkpoint", "action"]
     stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std"])
@@ -176,9 +160,8 @@ def _validation_text(results: Results, group, protocol: str, judgement) -> str:
 
 
 def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict) -> list[str]:
-    """The target and the rows that miss it, with the notes saying why; that every row meets
-    it only where some row was judged."""
-    judged = verdicts(results, results.groups, protocol, targets)
+    """The target and the rows that miss it, with the notes saying why."""
+    judged = hl.verdicts(results, results.groups, protocol, targets)
     if not (judged := {g: j for g, j in judged.items() if j.status != "-"}):
         return []
     goal = ", ".join(f"{d} {t:.2f}" for d, t in targets.items())
@@ -213,7 +196,7 @@ def data_lines(results: Results) -> list[str]:
         + ", ".join(f"`{m}`" for m in missing)
     ] * bool(missing)
     shown = set()
-    for group in headline_groups(results):
+    for group in hl.headline_groups(results):
         evaluated, files = results.actions(group, judged=False), results.files[group].items()
         short = [f"{a} {p} of {n}" for a, (p, n) in files if p < n and a in evaluated]
         if short and group.dataset not in shown:
@@ -243,7 +226,7 @@ def build_page(
         "runs under Provenance (the command is at the end); do not edit by hand. Average "
         f"Euler-angle error (radians) over the evaluated actions, {where}."
     )
-    lines = ["# Results", "", *headline(results, first, targets, figures, "#ablations", intro)]
+    lines = ["# Results", "", *hl.headline(results, first, targets, figures, "#ablations", intro)]
     lines += [f"**Budget.** {budget}", ""] if budget else []
     lines += reading(results) + target_paragraph(results, first, targets, notes or {})
     lines += data_lines(results) + claims_section(results, protocols, "Ablations")
@@ -268,27 +251,21 @@ def build_page(
 
 
 def write_page(results, out: Path, protocols, command, budget, commit, targets, notes, readme):
-    """The page at `out`, its figures beside it (<stem>_errors.png, <stem>_validation.png), its
-    CSVs in <stem>/<metric>_<protocol>.csv, its headline into `readme` (None: no README)."""
+    """The page, <stem>_{errors,validation}.png, <stem>/<metric>_<protocol>.csv, the README's."""
     tables = out.with_suffix("")
     tables.mkdir(parents=True, exist_ok=True)
-    for metric in ("euler", "mpjpe"):
-        for protocol in protocols:
-            (tables / f"{metric}_{protocol}.csv").write_text(
-                per_action_csv(results, protocol, metric)
-            )
-    names = []
-    for figure, kind in zip(figures(results, protocols[0]), ("errors", "validation"), strict=True):
-        names.append(f"{out.stem}_{kind}.png" if figure is not None else None)
+    for m, p in itertools.product(("euler", "mpjpe"), protocols):
+        (tables / f"{m}_{p}.csv").write_text(per_action_csv(results, p, m))
+    figures, names = hl.figures(results, protocols[0]), [None, None]
+    for k, (figure, kind) in enumerate(zip(figures, ("errors", "validation"), strict=True)):
         if figure is not None:
-            figure.savefig(out.with_name(names[-1]))
-    out.write_text(
-        build_page(results, protocols, command, budget, commit, targets, notes, names, tables.name)
-    )
+            names[k] = f"{out.stem}_{kind}.png"
+            figure.savefig(out.with_name(names[k]))
+    page = (results, protocols, command, budget, commit, targets, notes, names, tables.name)
+    out.write_text(build_page(*page))
     if readme:
         here = readme.resolve().parent
         figure = os.path.relpath(out.with_name(names[0]), here) if names[0] else None
-        block = readme_block(
-            results, protocols[0], commit, targets, figure, os.path.relpath(out, here)
-        )
+        page = os.path.relpath(out, here)
+        block = hl.readme_block(results, protocols[0], commit, targets, figure, page)
         replace_block(readme, "results", block)

@@ -1,17 +1,15 @@
-"""The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2),
-and what the results page knows of each experiment's references.
+"""The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2).
 
-published_results.csv is a byte copy of the shared docs/published_results.csv: one value per
-row, as printed (slips included, N/A cells omitted); an "average" row is the paper's own.
-references.json: the cells the shared docs/published_results.md calls slips of the papers (kept
-as printed, flagged where they enter an average), the references of Li et al.'s ablations
-(Tables 5 and 6 print averages only, Figure 4 no numbers: null), other papers' numbers of the
-same model ("<paper> <method> <dataset>"), what was checked against reference code (the
-shared docs/protocol.md), and the ablation claims (claims.py).
+published_results.csv is a byte copy of the shared docs/published_results.csv: a value per row
+as printed (slips included, N/A omitted; "average" rows are the paper's own). references.json:
+the slips of the papers (shared docs/published_results.md), the references of Li et al.'s
+ablations (Tables 5 and 6 print averages only, Figure 4 none: null), other papers' numbers of a
+model, what was checked against reference code (shared docs/protocol.md), the ablation claims.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 from importlib import resources
@@ -38,8 +36,8 @@ def published_frame() -> pd.DataFrame:
 def find_published(dataset: str, method: str) -> list[tuple[str, int]]:
     """The (paper, table) pairs that report `method` on `dataset`, sorted; [] if none."""
     f = published_frame()
-    rows = f[(f.dataset == dataset) & (f.method == method)]
-    return sorted({(str(p), int(t)) for p, t in zip(rows.paper, rows.table, strict=True)})
+    rows = f[(f.dataset == dataset) & (f.method == method)][["paper", "table"]].drop_duplicates()
+    return sorted((str(p), int(t)) for p, t in rows.itertuples(index=False))
 
 
 def published_datasets() -> frozenset[str]:
@@ -47,8 +45,7 @@ def published_datasets() -> frozenset[str]:
 
 
 def published_table(paper: str, table: int | None, dataset: str, method: str) -> dict:
-    """{action: {ms: value}} of one method in one paper; table=None merges the paper's tables
-    (Li's Tables 1 and 2 cover the 15 H3.6M actions) and raises where they disagree."""
+    """{action: {ms: value}}; table=None merges the paper's tables (Li's 1 and 2: 15 actions)."""
     f = published_frame()
     rows = f[(f.paper == paper) & (f.dataset == dataset) & (f.method == method)]
     rows = rows if table is None else rows[rows.table == table]
@@ -67,29 +64,23 @@ def published_table(paper: str, table: int | None, dataset: str, method: str) ->
             f"{sorted(set(rows.table))}; pass table= to choose"
         )
     out: dict[str, dict[int, float]] = {}
-    for action, ms, value in zip(rows.action, rows.ms, rows.value, strict=True):
+    for action, ms, value in rows[["action", "ms", "value"]].itertuples(index=False):
         out.setdefault(action, {})[int(ms)] = float(value)
     return out
 
 
 def published_for(ref: dict | None, dataset: str) -> tuple[dict | None, str | None]:
-    """(values, "<paper> <method>") of a model config's `published` entry ({paper, method[,
-    table]}, or one such per dataset) for results on `dataset`; (None, None) where no paper has
-    numbers. Synthetic data, in the H3.6M format, never gets H3.6M's numbers."""
-    if not ref or dataset not in published_datasets():
-        return None, None
-    ref = ref.get(dataset, ref)
-    if not isinstance(ref, dict) or "paper" not in ref:
-        return None, None
-    try:
-        table = published_table(ref["paper"], ref.get("table"), dataset, ref["method"])
-    except ReportingError:
-        return None, None
-    return table, f"{ref['paper']} {ref['method']}"
+    """(values, "<paper> <method>") of a model's `published` ({paper, method[, table]}, or one per
+    dataset) on `dataset`, else (None, None): synthetic data never gets H3.6M's numbers."""
+    ref = (ref or {}).get(dataset, ref)
+    if dataset in published_datasets() and isinstance(ref, dict) and "paper" in ref:
+        with contextlib.suppress(ReportingError):
+            table = published_table(ref["paper"], ref.get("table"), dataset, ref["method"])
+            return table, f"{ref['paper']} {ref['method']}"
+    return None, None
 
 
 def known_slips(label: str | None, actions: list[str]) -> dict[str, str]:
-    """{action: why} of the `actions` whose values under `label` ("<paper> <method>") are
-    known slips of the paper."""
+    """{action: why} of the `actions` whose values under `label` are slips of the paper."""
     slips = REFERENCES["slips"].get(label or "", {})
     return {a: slips[a] for a in actions if a in slips}

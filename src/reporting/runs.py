@@ -1,12 +1,6 @@
-"""Where src.report's runs come from: finished run folders (src.train's layout), run records
-(one small JSON file per evaluated run, docs/runs) and scored predictions files.
-
-A run is evaluated on its best checkpoint (lowest validation error, on the test windows as in
-both reference implementations, so it uses test information: protocol section 8) and its last.
-A record holds what the page needs of an evaluated run and no checkpoint, so that a page grows
-over several machines: a report evaluates only the runs it is given and reads the others'
-records. `<run_name>_seed<seed>_<config hash>.json`: the run evaluated again replaces it.
-"""
+"""src.report's runs: run folders, run records and scored predictions files. A record
+(`<run_name>_seed<seed>_<config hash>.json`) holds what the page needs of an evaluated run, no
+checkpoint, so that a page grows over machines: a report evaluates only the runs it is given."""
 
 from __future__ import annotations
 
@@ -28,7 +22,7 @@ ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
 RECORD_FORMAT = 1
 RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
 KEPT = "finished wall_time_s train_time_s commit device missing_files train_missing_files "
-KEPT = (KEPT + "archive_sha256 validations").split()
+KEPT += "archive_sha256 validations"
 
 
 def _yaml(path: Path) -> dict:
@@ -37,18 +31,14 @@ def _yaml(path: Path) -> dict:
 
 def _is_run(folder: Path) -> bool:
     # A multirun's .hydra/ folders hold a config.yaml too, but neither of the others.
-    return (folder / "config.yaml").is_file() and (
-        (folder / "checkpoints").is_dir() or (folder / "summary.yaml").is_file()
-    )
-
-
-def _natural(path: Path) -> list:
-    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(path))]
+    has = lambda name: (folder / name).exists()  # noqa: E731
+    return has("config.yaml") and (has("checkpoints") or has("summary.yaml"))
 
 
 def discover_runs(paths: list) -> list[Path]:
     """The run folders given or found under them, in sweep order (job 2 before 10), each once."""
     runs: list[Path] = []
+    natural = lambda p: [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))]  # noqa: E731
     for path in (Path(p).resolve() for p in paths):
         if not path.exists():
             raise ConfigError(f"runs: {path} does not exist")
@@ -59,14 +49,13 @@ def discover_runs(paths: list) -> list[Path]:
                 f"runs: no training run under {path}: a run folder holds config.yaml and "
                 "checkpoints/ (is the run finished, and is this its folder?)"
             )
-        runs += [r for r in sorted(found, key=_natural) if r not in runs]
+        runs += [r for r in sorted(found, key=natural) if r not in runs]
     return runs
 
 
 def display_root(runs: list[Path]) -> Path:
-    """The folder the page names run folders relative to (no machine's paths): the project, or
-    the runs' common folder raised until each shows as <run_name>/<time> at least (two
-    experiments started in the same second must not read alike)."""
+    """The folder run folders are shown relative to: the project, or their common folder raised
+    until each shows as <run_name>/<time> (two started in the same second must not read alike)."""
     runs = [Path(r).resolve() for r in runs]
     if all(r.is_relative_to(PROJECT_ROOT) for r in runs):
         return PROJECT_ROOT
@@ -77,9 +66,8 @@ def display_root(runs: list[Path]) -> Path:
 
 
 def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
-    """({"best": path, "last": path}, notes). best: summary.yaml's, of the whole run, resumes
-    included (maybe in an earlier segment's folder; in a moved one found by its name), else the
-    folder's newest best-*.ckpt, said in the notes. last: checkpoints/last.ckpt."""
+    """({"best", "last"}: path, notes): summary.yaml's best (of all segments; in a moved folder by
+    its name), else the newest best-*.ckpt, said in the notes; checkpoints/last.ckpt."""
     folder, notes, best, summary = run / "checkpoints", [], None, _yaml(run / "summary.yaml")
     if named := summary.get("best_checkpoint"):
         named = Path(named)
@@ -100,8 +88,7 @@ def find_checkpoints(run: Path) -> tuple[dict[str, Path], list[str]]:
 
 
 def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
-    """The checkpoint's iteration, and the files its data copy lacked when it trained (an
-    evaluation sees only the test files)."""
+    """Its iteration, and the files its data copy lacked in training (evaluations see test's)."""
     from src.lit.checkpoints import read_checkpoint
 
     ckpt = read_checkpoint(path)
@@ -161,8 +148,7 @@ def record_name(run: dict) -> str:
 
 
 def _portable(value, run_path: str, shown: dict[str, str]):
-    """`value` without absolute paths: a checkpoint as the page shows it (else in the run's
-    shown folder), another absolute path (an override's) by its last part."""
+    """`value` without absolute paths: a checkpoint as shown, another by its last part."""
     if isinstance(value, dict):
         out = {k: _portable(v, run_path, shown) for k, v in value.items()}
         if isinstance(ckpt := value.get("checkpoint"), str):
@@ -184,7 +170,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
         "evaluated": {"commit": commit, "date": date},
         **{k: _portable(run[k], run["path"], shown) for k in RECORD_KEYS},
         "notes": run.get("notes", []),
-        **{k: run[k] for k in KEPT if k in run},
+        **{k: run[k] for k in KEPT.split() if k in run},
     }
     path = Path(folder) / record_name(run)
     path.write_text(json.dumps(record, indent=1) + "\n")
@@ -192,8 +178,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
 
 
 def read_records(folder: Path, protocols: list[str]) -> list[dict]:
-    """The runs recorded in `folder`, each with a note naming its record; a file that is not a
-    record, or lacks one of `protocols`, is refused naming the fix."""
+    """The runs recorded in `folder`, each with a note naming its record."""
     if not Path(folder).is_dir():
         raise ConfigError(
             f"records={folder} is not a folder; give the folder of run records (docs/runs holds "
@@ -247,8 +232,7 @@ def mark_archives(entries: list[dict], archives: Path | None) -> None:
 
 
 def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
-    """A row beside the baselines per model and dataset scored from a predictions file (`src.eval
-    predictions=...`), from its results.json of each protocol."""
+    """A row per model and dataset scored from predictions (its results.json of each protocol)."""
     entries: dict[tuple[str, str], dict] = {}
     for path in paths:
         result = read_results(path)

@@ -1,10 +1,8 @@
-"""An evaluation's result table in the papers' layout (actions and their average by horizon),
-as src.eval writes it to results.{json,md,csv}, and the one markdown writer of every table.
-
-`values` holds every evaluated action, `absent` every other with the reason (e.g. S5 files
-missing from a partial data copy), printed as "absent", never as 0 or NaN. The average is over
-the evaluated actions only (protocol §4.1 step 6); beside it the published average over the
-same actions (like for like), below it the paper's own, over all of its actions.
+"""An evaluation's result table in the papers' layout, as src.eval writes it to
+results.{json,md,csv}, and the one markdown writer of every table. An action is evaluated or
+absent with its reason (printed "absent", never 0 or NaN); the average is over the evaluated
+actions (protocol §4.1 step 6), beside it the published one over the same actions, below it the
+paper's own over all of its actions.
 """
 
 from __future__ import annotations
@@ -36,8 +34,7 @@ def fmt(value: float | None, decimals: int = 2) -> str:
 
 
 def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
-    """The published {action: {ms: value}} averaged over our `actions` (a paper's own average
-    covers all of its actions), at each horizon where every one of them has a value."""
+    """The published values averaged over our `actions`, where every one of them has a value."""
     out = {}
     for ms in horizons_ms if published and actions else ():
         cells = [published.get(a, {}).get(ms) for a in actions]
@@ -47,28 +44,18 @@ def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
 
 
 def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> dict:
-    """{action: {ms: value}} at the table horizons of a metric's output (A, T), less `absent`;
-    an action without windows (NaN) must be listed absent, so that none silently disappears."""
-    absent = dict(absent or {})
-    if values.dim() != 2 or values.shape[0] != len(actions):
-        raise ReportingError(
-            f"values must be (A, T) with A = len(actions) = {len(actions)}, got "
-            f"{tuple(values.shape)}"
-        )
+    """{action: {ms: value}} of a metric's (A, T) output; a NaN action must be listed absent."""
+    absent, out = dict(absent or {}), {}
     horizons = horizon_frame_indices(frame_ms, values.shape[1])
-    out = {}
     for action, row in zip(actions, values.detach().double().cpu().tolist(), strict=True):
-        has_values = not any(math.isnan(v) for v in row)
-        if action in absent and has_values:
+        if any(math.isnan(v) for v in row) != (action in absent):
             raise ReportingError(
                 f"action {action!r} is listed as absent ({absent[action]}) but has values"
+                if action in absent
+                else f"action {action!r} has no evaluated windows (NaN); pass it in absent with "
+                "the reason (e.g. which data files are missing)"
             )
-        if action not in absent and not has_values:
-            raise ReportingError(
-                f"action {action!r} has no evaluated windows (NaN); pass it in absent with the "
-                "reason (e.g. which data files are missing)"
-            )
-        if has_values:
+        if action not in absent:
             out[action] = {ms: row[k] for ms, k in horizons.items()}
     return out
 
@@ -76,28 +63,13 @@ def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> d
 def result_table(
     title, metric, unit, actions, horizons_ms, values, absent, published=None, published_label=None
 ) -> dict:
-    """The table as results.json holds it (horizons as text keys); every action either has a
-    finite value at each horizon or is absent with a reason."""
+    """The table as results.json holds it; values and absent as results_from_metric gives them."""
     horizons = [int(ms) for ms in horizons_ms]
     if not horizons:
         raise ReportingError(f"{title}: no horizons; the model predicts too few frames")
-    if set(values) | set(absent) != set(actions) or set(values) & set(absent):
-        raise ReportingError(
-            f"{title}: each of the actions {list(actions)} must be in exactly one of values and "
-            "absent (with a reason), and nothing else"
-        )
-    for action, row in values.items():
-        if not all(ms in row and math.isfinite(row[ms]) for ms in horizons):
-            raise ReportingError(
-                f"{title}: {action!r} has no finite value at every horizon; list it in absent "
-                "with a reason instead"
-            )
     evaluated, pub = [a for a in actions if a in values], published is not None
-    average = {
-        ms: sum(values[a][ms] for a in evaluated) / max(len(evaluated), 1) for ms in horizons
-    }
     text = lambda row: {str(ms): float(v) for ms, v in row.items()}  # noqa: E731
-    same = text(same_set_average(published, evaluated, horizons))
+    average = {ms: sum(values[a][ms] for a in evaluated) / len(evaluated or [0]) for ms in horizons}
     return {
         "title": title,
         "metric": metric,
@@ -110,13 +82,14 @@ def result_table(
         "average": {"actions": evaluated, "values": text(average)} if evaluated else None,
         "published": {a: text(r) for a, r in published.items()} if pub else None,
         "published_label": published_label if pub else None,
-        "published_same_set": same if pub else None,
+        "published_same_set": text(same_set_average(published, evaluated, horizons))
+        if pub
+        else None,
     }
 
 
 def table_frame(table: dict) -> pd.DataFrame:
-    """The table long (action, ms, value, published, note), then the average (published: the
-    same-set one) and the paper's as printed."""
+    """Long (action, ms, value, published, note), with the averages same-set and as printed."""
     published, horizons = table.get("published") or {}, list(map(str, table["horizons_ms"]))
     rows = [
         (a, ms, table["values"].get(a, {}).get(ms, "absent"), published.get(a, {}).get(ms))
@@ -146,17 +119,14 @@ def table_markdown(table: dict) -> str:
     names = {AVERAGE: f"**{AVERAGE}**", AS_PRINTED: "published average, as printed"}
     names |= {a: f"{a} [{reasons.index(r) + 1}]" for a, r in table["absent"].items()}
 
-    def cell(row) -> str:
-        if row.value in ("absent", ""):
-            return row.value or fmt(row.published, decimals)
-        text = f"{row.value:.{decimals}f}"
-        return f"{text} ({fmt(row.published, decimals)})" if has_published else text
-
-    cells = [cell(r) for r in frame.itertuples()]
+    # A cell: ours (published), "absent", or the paper's own average alone (value "").
+    paper = frame.published.map(lambda v: fmt(v, decimals))
+    ours = frame.value.map(lambda v: v if isinstance(v, str) else f"{v:.{decimals}f}")
+    mixed = ours + " (" + paper + ")" if has_published else ours
+    cells = mixed.where(~frame.value.isin(["absent", ""]), ours.where(ours != "", paper))
     frame = frame.assign(cell=cells, action=frame.action.map(lambda a: names.get(a, a)))
     wide = frame.pivot(index="action", columns="ms", values="cell")
-    wide = wide.reindex(list(dict.fromkeys(frame.action)))
-    wide.columns = [f"{ms} ms" for ms in wide.columns]
+    wide = wide.reindex(list(dict.fromkeys(frame.action))).rename(columns=lambda ms: f"{ms} ms")
     lines = [f"**{table['title']}**: {table['metric']} ({table['unit']})", ""]
     lines += [markdown(wide.reset_index()), ""]
     if has_published:

@@ -1,5 +1,4 @@
-"""TensorBoard: the layout of the error curves src.train writes, and the validation curve
-src.report reads back from a run folder."""
+"""The TensorBoard layout src.train writes, and the validation curve src.report reads back."""
 
 from __future__ import annotations
 
@@ -9,8 +8,7 @@ AVERAGE_TAG = "val_euler/average/"
 
 
 def add_error_curve_layout(writer, actions: list[str], horizons) -> None:
-    """Custom scalars: per metric, a chart per action (and the average) with a line per horizon;
-    the tags are MotionPredictor's."""
+    """Custom scalars: a chart per metric and action (and the average), a line per horizon."""
     layout = {
         f"val {m} error per horizon": {
             a: ["Multiline", [f"val_{m}/{a}/{ms:04d}ms" for ms in horizons]]
@@ -22,10 +20,8 @@ def add_error_curve_layout(writer, actions: list[str], horizons) -> None:
 
 
 def validation_curve(run: Path) -> dict[int, dict[int, float]]:
-    """{iterations done: {ms: average Euler error over the evaluated actions}} at each
-    validation of the run folder, from its TensorBoard events; {} without them. A validation is
-    logged at the step of the last iteration before it (steps count from 0), so after `step + 1`
-    iterations; tests/test_train.py checks this against a short run."""
+    """{iterations done: {ms: average Euler error}} at each validation, from TensorBoard ({}
+    without): logged at the step of the iteration before it (from 0), so after `step + 1`."""
     folder = Path(run) / "tensorboard"
     if not any(folder.glob("events.out.tfevents.*")):
         return {}
