@@ -1,9 +1,7 @@
-"""`src.eval predictions=<file>`: predictions made by any code on the test windows that
-`src.export_windows` wrote, checked and scored (the file format: README, "Scoring a model from
-another code base"). The file stands in for the network in src.eval's test loop (FilePredictor):
-ground truth, metrics and tables are src.eval's own. An action is predicted fully or not at all
-(then reported absent).
-"""
+"""`src.eval predictions=<file>`: predictions by any code of the windows `src.export_windows`
+wrote (format: README, "Scoring a model from another code base"), checked, then standing in for
+the network in src.eval's own test loop (FilePredictor). An action is predicted fully or not at
+all (then reported absent)."""
 
 from __future__ import annotations
 
@@ -55,8 +53,7 @@ def read_predictions(path: str | Path) -> Predictions:
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise PredictionsError(f"{path} holds one array, not a .npz of named arrays: {SAVE}")
     with npz:
-        missing = [k for k in ("prediction", "window_id") if k not in npz.files]
-        if missing:
+        if missing := [k for k in ("prediction", "window_id") if k not in npz.files]:
             raise PredictionsError(
                 f"{path} has no {' and no '.join(missing)} array (it holds: "
                 f"{', '.join(npz.files) or 'nothing'}); save it with {SAVE}"
@@ -134,16 +131,14 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
             f"(data.future_len): save the first {need}, prediction[:, :{need}]"
         )
     counts = Counter(preds.ids)
-    repeated = [i for i, n in counts.items() if n > 1]
-    if repeated:
+    if repeated := [i for i, n in counts.items() if n > 1]:
         raise PredictionsError(
             f"{path}: window_id {repeated[0]!r} appears {counts[repeated[0]]} times "
             f"({len(repeated)} id(s) repeated); give one prediction per window"
         )
     ours = window_ids(dm.eval_windows)
     known = set(ours)
-    unknown = [i for i in preds.ids if i not in known]
-    if unknown:
+    if unknown := [i for i in preds.ids if i not in known]:
         absent = ", ".join(dm.absent_actions)
         absent = f"; this data copy cannot evaluate {absent}" if absent else ""
         raise PredictionsError(
@@ -176,9 +171,8 @@ def published_ref(value: str | None, dataset: str) -> dict | None:
     if value in (None, "", "none"):
         return None
     paper, _, method = str(value).partition(":")
-    if dataset in published_datasets() and paper not in {
-        p for p, _ in find_published(dataset, method)
-    }:
+    papers = {p for p, _ in find_published(dataset, method)}
+    if dataset in published_datasets() and paper not in papers:
         raise ConfigError(
             f"published={value}: no published {dataset} numbers of that paper and method; use "
             f"PAPER:METHOD as in src/reporting/published_results.csv, e.g. li2018:conv_s2s "
