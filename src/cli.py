@@ -24,7 +24,7 @@ from src.lit.factory import PROJECT_ROOT
 from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse
 
 CONF_DIR = PROJECT_ROOT / "conf"
-HYDRA_USER_ERRORS = (Composition, OverrideParseException, SearchPathException)
+no_tips = lambda record: not str(record.msg).startswith("💡 Tip")  # noqa: E731
 
 
 def group_options(group: str) -> str:
@@ -54,10 +54,6 @@ def silence_false_warnings() -> None:
     # Lightning's advertisements for its cloud products ("💡 Tip: ... try litlogger").
     tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
     tips.addFilter(no_tips)  # added once however often called
-
-
-def no_tips(record: logging.LogRecord) -> bool:
-    return not str(record.msg).startswith("💡 Tip")
 
 
 def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True):
@@ -92,7 +88,7 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
             os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises, instead of printing, its errors
             try:
                 return run(task)()
-            except HYDRA_USER_ERRORS as err:
+            except (Composition, OverrideParseException, SearchPathException) as err:
                 refuse(hydra_error(err, config_name))
             finally:
                 os.environ.pop("HYDRA_FULL_ERROR", None)
@@ -109,8 +105,7 @@ def hydra_error(err: Exception, config_name: str) -> str:
     if isinstance(err, OverrideParseException):
         return (
             f"cannot parse the override {err.override!r}: {err.message.splitlines()[0]}. Fix: "
-            "write key=value; quote a value holding '=', ',', spaces or brackets, e.g. "
-            "\"ckpt_path='a=b,c/last.ckpt'\"."
+            "write key=value; quote a value holding '=', ',', spaces or brackets: \"k='a=b,c'\"."
         )
     if isinstance(err, MissingConfigException) and err.options is not None:
         group, _, wanted = (err.missing_cfg_file or "?/?").rpartition("/")

@@ -63,8 +63,7 @@ class MotionForecaster:
         compile: bool | str = False,
         fps: float = 25.0,
     ):
-        """compile: True, False or "auto" (CUDA only); off by default: not reliably faster on
-        the CPU."""
+        """compile: True, False or "auto" (CUDA only); off by default: not reliably faster on CPU"""
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {compile!r}")
         # torch's own errors: an assertion at the first copy, or every device type listed.

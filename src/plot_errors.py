@@ -2,16 +2,14 @@
 
     python -m src.plot_errors results=[a/results.json,b/results.json] action=walking
 
-A line per results.json of src.eval (one dataset), `published=true` adds the paper's, dashed.
-The image goes into the command's own run folder unless `out=` names a new file.
-"""
+A line per results.json of src.eval (one dataset), `published=true` adds the paper's, dashed;
+into the command's own run folder unless `out=` names a new file."""
 
 from __future__ import annotations
 
 from collections import Counter
 from pathlib import Path
 
-import matplotlib
 from matplotlib.backend_bases import FigureCanvasBase
 from omegaconf import DictConfig, OmegaConf
 
@@ -53,10 +51,7 @@ def plot_errors(paths, out, metric="euler", action="average", labels=None, publi
     if out.suffix.lstrip(".").lower() not in formats:
         raise ConfigError(f"out={out} has no image extension matplotlib writes; end it in .png")
     if out.exists():
-        raise ConfigError(
-            f"out={out} already exists; nothing was overwritten. Give another out=, or remove "
-            "the file first."
-        )
+        raise ConfigError(f"out={out} already exists; nothing was overwritten. Give another out=.")
     results = [read_results(path) for path in paths]
     found = [r.get("provenance", {}).get("dataset") or "?" for r in results]
     if len(datasets := sorted(set(found) - {"?"}) or ["?"]) > 1:
@@ -77,15 +72,10 @@ def plot_errors(paths, out, metric="euler", action="average", labels=None, publi
         if published and pub and datasets[0] in published_datasets() and paper not in dashed:
             curves.append((paper, pub))
             dashed.append(paper)
-    unit = "/".join(sorted(units))
-    fig = error_vs_horizon(
-        curves,
-        title=f"{action} on {', '.join(datasets)}",
-        ylabel=f"{METRICS[metric]} ({unit})" if metric == "mpjpe" else METRICS[metric],
-        dashed=dashed,
-    )
+    unit = f" ({'/'.join(sorted(units))})" if metric == "mpjpe" else ""  # euler's says rad
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out)
+    title = f"{action} on {', '.join(datasets)}"
+    error_vs_horizon(curves, title=title, ylabel=METRICS[metric] + unit, dashed=dashed).savefig(out)
     return out
 
 
@@ -115,7 +105,6 @@ def legend_labels(results: list[dict], paths: list) -> list[str]:
 
 @hydra_entry("plot_errors")
 def main(cfg: DictConfig) -> Path:
-    matplotlib.use("Agg")
     paths = cfg.results if OmegaConf.is_list(cfg.results) else [cfg.results]
     if not paths or paths == [None]:
         raise ConfigError("say which runs to plot: results=[path/to/results.json,...]")

@@ -65,16 +65,14 @@ def window_rows(
     """(rows, n_observed, description) of evaluation window `index`: `module`'s prediction
     (dropout off), the ground truth and (`baseline`) zero-velocity, each the last `observed_shown`
     observed frames then the future. Titled with `dataset` (default: the data's own name)."""
-    item = dm.val_dataloader().dataset[index]
-    was_training = module.training
+    item = {k: v.to(module.device) for k, v in dm.val_dataloader().dataset[index].items()}
+    was_training, T = module.training, len(item["future"])
     module.eval()
     try:
-        observed = item["observed"][None].to(module.device)
-        T = item["future"].shape[0]
-        pred = module(observed, T, action=item["action"][None].to(module.device))[0]
+        pred = module(item["observed"][None], T, action=item["action"][None])[0]
     finally:
         module.train(was_training)
-    frames = dict(observed=observed[0], future=item["future"].to(module.device), prediction=pred)
+    frames = {"observed": item["observed"], "future": item["future"], "prediction": pred}
     frames = {k: module.normalizer.unnormalize(v).cpu() for k, v in frames.items()}
     obs = frames["observed"][-observed_shown:]
     skeleton = Skeleton.load(module.dataset)
@@ -231,8 +229,6 @@ def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle er
         ax = fig.add_subplot(1, len(panels), k + 1)
         ticks: set[int] = set()
         for n, curve in enumerate(curves):
-            if not curve.values:
-                raise ValueError(f"curve {curve.label!r} has no values")
             xs = sorted(int(x) for x in curve.values)
             ys = np.array([curve.values.get(x, curve.values.get(str(x))) for x in xs])
             ticks.update(xs)

@@ -64,22 +64,19 @@ def read_predictions(path: str | Path) -> Predictions:
                 arrays[key] = npz[key]
             except ValueError as err:  # object arrays: loading them would unpickle
                 raise PredictionsError(
-                    f"{path}: {key} is an array of Python objects, which is not loaded (unpickling "
-                    f"can run code); save it as plain numbers or strings, np.asarray(..., "
-                    f"dtype={'np.float32' if key == 'prediction' else 'str'})"
+                    f"{path}: {key} is an array of Python objects, not loaded (unpickling can "
+                    "run code); save plain numbers or strings: np.asarray(..., dtype=float or str)"
                 ) from err
     prediction, ids = arrays.pop("prediction"), arrays.pop("window_id")
     if prediction.dtype.kind not in "fiu" or prediction.ndim != 3 or not len(prediction):
         raise PredictionsError(
-            f"{path}: prediction is a {prediction.dtype} array of shape {prediction.shape}; it "
-            "must hold numbers and it must be (N, T, F) with N >= 1: raw exp-map frames of N "
-            "windows, T future frames each (prediction[i] for window_id[i])"
+            f"{path}: prediction is {prediction.dtype} of shape {prediction.shape}; it must hold "
+            "numbers and it must be (N, T, F) with N >= 1: T raw exp-map frames per window"
         )
     if ids.dtype.kind not in "US" or ids.shape != (len(prediction),):
         raise PredictionsError(
-            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}, {ids.size} window "
-            f"ids for {len(prediction)} predictions; it must be a 1-D array of strings, one per "
-            "prediction (window_id[i] names the window of prediction[i]): windows.npz's ids"
+            f"{path}: window_id is {ids.dtype} of shape {ids.shape}, {ids.size} window ids for "
+            f"{len(prediction)} predictions; it must be a 1-D array of strings, windows.npz's ids"
         )
     for key, value in arrays.items():
         if value.dtype.kind not in "US" or value.size != 1:
@@ -93,8 +90,7 @@ def read_predictions(path: str | Path) -> Predictions:
         row, frame, col = np.argwhere(bad)[0].tolist()
         raise PredictionsError(
             f"{path}: prediction holds {int(bad.sum())} NaN or inf value(s), the first in window "
-            f"{ids[row]!r} (row {row}), frame {frame}, column {col}; every predicted value must "
-            "be finite"
+            f"{ids[row]!r} (row {row}), frame {frame}, column {col}; predict finite values"
         )
     meta = {key: str(value.astype(str).item()) for key, value in arrays.items()}
     return Predictions(path, prediction.astype(np.float32, copy=False), ids, meta)
@@ -159,9 +155,8 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
             )
     if "data_sha256" in preds.meta and preds.meta["data_sha256"] != data_sha256(dm):
         raise PredictionsError(
-            f"{path}: its data_sha256 is not that of the windows here, so they were exported "
-            f"from other data (another copy of the archives, or other data.* settings): "
-            f"predict the windows of {export} run here"
+            f"{path}: its data_sha256 is not that of the windows here: exported from other data "
+            f"(other archives or data.* settings); predict the windows of {export} run here"
         )
     return absent
 
@@ -175,16 +170,14 @@ def published_ref(value: str | None, dataset: str) -> dict | None:
     if dataset in published_datasets() and paper not in papers:
         raise ConfigError(
             f"published={value}: no published {dataset} numbers of that paper and method; use "
-            f"PAPER:METHOD as in src/reporting/published_results.csv, e.g. li2018:conv_s2s "
-            "(or published=none)"
+            "PAPER:METHOD of src/reporting/published_results.csv (li2018:conv_s2s) or none"
         )
     return {"paper": paper, "method": method}
 
 
 class FilePredictor(MotionPredictor):
-    """src.eval's test loop with the file's predictions in place of the network's. The columns
-    the protocol ignores (std < 1e-4 over the training frames, §2.1) are set to their training
-    mean, as unnormalising a network's output does: no model is judged on them."""
+    """The file's predictions in place of the network's. The columns the protocol ignores (§2.1)
+    are set to their training mean, as unnormalising a network's output does."""
 
     def __init__(self, preds: Predictions, dm: MotionDataModule, dim_rule: str, config: dict):
         super().__init__(
@@ -211,10 +204,7 @@ def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, FilePredictor]
     """(datamodule of the windows scored, module to test) for src.eval, from
     `predictions=<file> data=<name> [protocol=...] [published=PAPER:METHOD]`."""
     if cfg.get("ckpt_path") or cfg.get("model") is not None:
-        raise ConfigError(
-            "predictions= scores a file on its own: drop ckpt_path= and model= (score a "
-            "checkpoint or a baseline in a separate src.eval run)"
-        )
+        raise ConfigError("predictions= scores a file on its own: drop ckpt_path= and model=")
     if cfg.get("data") is None:
         raise ConfigError(
             f"say whose test windows {cfg.predictions} predicts: data=h36m|cmu|synthetic "

@@ -1,12 +1,11 @@
-"""Train a motion predictor.
+"""Train a motion predictor; return the best average validation error (Euler, radians), which
+Hydra's sweepers minimise.
 
     python -m src.train model=conv_s2s data=cmu
     python -m src.train experiment=li2018_h36m
     python -m src.train -m model=conv_s2s,gru_s2s data=cmu      (a sweep)
     python -m src.train resume=outputs/train/runs/<run>/<time>   (resume: the run's own settings)
     python -m src.train ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
-
-Returns the best average validation error (Euler, radians), which Hydra's sweepers minimise.
 """
 
 from __future__ import annotations
@@ -86,9 +85,7 @@ def train(cfg: DictConfig) -> float:
 
     # fast_dev_run swaps the logger for a dummy, but logger.experiment would write events.
     fast_dev_run = bool(cfg.trainer.get("fast_dev_run"))
-    logger = TensorBoardLogger(
-        save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False
-    )
+    logger = TensorBoardLogger(str(out_dir), "tensorboard", version="", default_hp_metric=False)
     every = cfg.progress_every_s
     callbacks = [*FrameStripLogger.from_config(cfg)]
     callbacks += [] if every is None else [ProgressLog(cfg.iterations, every)]
@@ -126,8 +123,7 @@ def train(cfg: DictConfig) -> float:
             "best_val_euler_avg": score,
             "best_checkpoint": best_path,
             "last_checkpoint": str(last.path),
-            "final_val_euler_avg": final["euler_avg"],
-            "final_val_mpjpe_avg": final["mpjpe_avg"],
+            **{f"final_val_{k}": value for k, value in final.items()},
             "iterations": int(module.iteration),
             "wall_time_s": round(wall, 1),  # this process's
             "train_time_s": round(timer.time_elapsed("train"), 1) if total_known else None,

@@ -6,7 +6,6 @@ prediction and zero-velocity, global translation and rotation zeroed (§4.1), z 
 import shutil
 from pathlib import Path
 
-import matplotlib
 from matplotlib.animation import FFMpegWriter, PillowWriter
 from omegaconf import DictConfig
 
@@ -38,7 +37,6 @@ def select_window(dm: MotionDataModule, action: str, window: int) -> int:
 
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
-    matplotlib.use("Agg")
     check(cfg, "visualize")  # window's range depends on the action: select_window names it
     dm, module = build_for_evaluation(cfg)
     index = select_window(dm, cfg.action, int(cfg.window))
