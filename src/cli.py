@@ -1,11 +1,7 @@
-"""What the entry points share: one-line errors instead of tracebacks, written `--help` pages,
-and only the warnings that are true for this project.
-
-`hydra_entry` decorates the Hydra entry points. Every refusal reaches the user through
-`run_folders.refuse`: the project's errors (`friendly_errors`), the run-folder callback's, and
-what Hydra rejects while composing (a misspelt key or option, an unparsable override), reworded
-below with the valid choices. HYDRA_FULL_ERROR=1 shows Hydra's traceback.
-"""
+"""What the entry points share (`hydra_entry`): every refusal as one line through
+`run_folders.refuse` (the project's errors, and what Hydra rejects while composing, reworded with
+the valid choices; HYDRA_FULL_ERROR=1 shows Hydra's traceback), written `--help` pages, and only
+the warnings that are true for this project."""
 
 from __future__ import annotations
 
@@ -25,10 +21,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.lit.config import constructor_schema
 from src.lit.factory import PROJECT_ROOT
-from src.lit.run_folders import USER_ERRORS, refuse
+from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse
 
 CONF_DIR = PROJECT_ROOT / "conf"
-HYDRA_USER_ERRORS = (Composition, OverrideParseException, SearchPathException)
+no_tips = lambda record: not str(record.msg).startswith("💡 Tip")  # noqa: E731
 
 
 def group_options(group: str) -> str:
@@ -40,28 +36,13 @@ if not OmegaConf.has_resolver("options"):
     OmegaConf.register_new_resolver("options", group_options)
 
 
-def friendly_errors(fn):
-    """The project's errors as one line, exit status 2."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except USER_ERRORS as err:
-            refuse(err)
-
-    return wrapper
-
-
 def check_installation() -> None:
     """`pip install .` (not editable) copies only the package, without conf/."""
     if not (CONF_DIR / "train.yaml").is_file():
         refuse(
-            f"the project's configs are missing: {CONF_DIR} holds no train.yaml, so the package "
-            f"was run from {PROJECT_ROOT / 'src'} without the clone it belongs to (as after "
-            "`pip install .`, which copies only the Python code). Fix: `pip uninstall "
-            "motion-forecast`, then install from the clone with `pip install -e .` (editable) "
-            "and run the commands there."
+            f"the project's configs are missing: {CONF_DIR} holds no train.yaml (as after `pip "
+            "install .`, which copies only the Python code). Fix: `pip uninstall motion-forecast`"
+            ", then `pip install -e .` (editable) in the clone, and run the commands there."
         )
 
 
@@ -72,19 +53,22 @@ def silence_false_warnings() -> None:
     warnings.filterwarnings("ignore", message=leaf_spec, category=FutureWarning)
     # Lightning's advertisements for its cloud products ("💡 Tip: ... try litlogger").
     tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
-    if not any(getattr(f, "__name__", "") == "no_tips" for f in tips.filters):
-        tips.addFilter(no_tips)
+    tips.addFilter(no_tips)  # added once however often called
 
 
-def no_tips(record: logging.LogRecord) -> bool:
-    return not str(record.msg).startswith("💡 Tip")
-
-
-def hydra_entry(config_name: str):
-    """`@hydra.main` for `conf/<config_name>.yaml`, with the project's one-line errors."""
+def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True):
+    """`@hydra.main` for `conf/<config_name>.yaml`; the project's errors end it in one line,
+    exit status 2. With `tidy`, a refusal removes what the command put into its run folder,
+    unless its file `started` exists (the run had begun)."""
 
     def decorate(fn):
-        task = friendly_errors(fn)
+        @functools.wraps(fn)
+        def task(cfg: DictConfig):
+            try:
+                with nothing_left_if_refused(started) if tidy else contextlib.nullcontext():
+                    return fn(cfg)
+            except USER_ERRORS as err:
+                refuse(err)
 
         @functools.wraps(fn)
         def entry(cfg_passthrough: DictConfig | None = None):
@@ -104,7 +88,7 @@ def hydra_entry(config_name: str):
             os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra raises, instead of printing, its errors
             try:
                 return run(task)()
-            except HYDRA_USER_ERRORS as err:
+            except (Composition, OverrideParseException, SearchPathException) as err:
                 refuse(hydra_error(err, config_name))
             finally:
                 os.environ.pop("HYDRA_FULL_ERROR", None)
@@ -121,8 +105,7 @@ def hydra_error(err: Exception, config_name: str) -> str:
     if isinstance(err, OverrideParseException):
         return (
             f"cannot parse the override {err.override!r}: {err.message.splitlines()[0]}. Fix: "
-            "write key=value; quote a value holding '=', ',', spaces or brackets, e.g. "
-            "\"ckpt_path='a=b,c/last.ckpt'\"."
+            "write key=value; quote a value holding '=', ',', spaces or brackets: \"k='a=b,c'\"."
         )
     if isinstance(err, MissingConfigException) and err.options is not None:
         group, _, wanted = (err.missing_cfg_file or "?/?").rpartition("/")

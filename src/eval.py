@@ -3,19 +3,11 @@
 results.{md,csv,json} into the run's folder (src/results.py). Usage: `--help`, README.
 """
 
-from omegaconf import DictConfig
-
 from src.cli import hydra_entry
-from src.lit.run_folders import nothing_left_if_refused
 from src.results import evaluate
 
-
-@hydra_entry("eval")
-def main(cfg: DictConfig) -> None:
-    # Refused (a bad checkpoint, missing data): as with src.train, its folder goes.
-    with nothing_left_if_refused("results.json"):
-        evaluate(cfg)
-
+# Refused (a bad checkpoint, missing data): as with src.train, its folder goes.
+main = hydra_entry("eval", started="results.json")(evaluate)
 
 if __name__ == "__main__":
     main()

@@ -15,7 +15,6 @@ from src.data.export import window_arrays
 from src.data.files import atomic_write
 from src.lit.config import check
 from src.lit.factory import ConfigError, build_test_data
-from src.lit.run_folders import nothing_left_if_refused
 
 
 def export(cfg: DictConfig) -> Path:
@@ -38,11 +37,7 @@ def export(cfg: DictConfig) -> Path:
     return out
 
 
-@hydra_entry("export_windows")
-def main(cfg: DictConfig) -> None:
-    # Refused before writing (a bad setting, missing data): its run folder goes.
-    with nothing_left_if_refused(started=None):
-        export(cfg)
+main = hydra_entry("export_windows")(export)  # refused before writing: its folder goes
 
 
 if __name__ == "__main__":

@@ -1,8 +1,6 @@
-"""MotionForecaster: a trained checkpoint in, raw exp-map futures out, no data files needed
-(usage: README, "Using a trained predictor"). Frames are rows at the model's rate, `fps`: 25,
-every other row of the dataset's files (protocol §1.3); F is 99 on H3.6M, 117 on CMU. The
-checkpoint carries config, weights and normaliser, so (un)normalisation (§2.1, §2.2) is done here.
-"""
+"""MotionForecaster: a checkpoint in, raw exp-map futures out, no data files needed (README,
+"Using a trained predictor"). Frames (F: 99 on H3.6M, 117 on CMU) are at the model's `fps`, 25:
+every other row of the files (protocol §1.3); (un)normalisation (§2.1, §2.2) is done here."""
 
 from __future__ import annotations
 
@@ -26,9 +24,7 @@ class InferenceInputError(ValueError):
 def _future_len(future_len: int) -> int:
     # Up front: a float would fail deep in the decoding loop, 0 make a stream answer nothing.
     if not isinstance(future_len, numbers.Integral) or future_len < 1:
-        raise InferenceInputError(
-            f"future_len must be an integer >= 1 (frames to predict), got {future_len!r}"
-        )
+        raise InferenceInputError(f"future_len must be an integer >= 1, got {future_len!r}")
     return int(future_len)
 
 
@@ -47,10 +43,9 @@ COMPILED_SHAPES = 4
 
 
 def compile_for_prediction(net: nn.Module) -> nn.Module:
-    """`net` compiled for prediction on its weights' device. On a GPU "reduce-overhead" replays
-    a batch-1 prediction's hundreds of tiny kernels as one CUDA graph (one static graph per shape:
-    dynamic=False); on the CPU the default mode fuses small ops. No fullgraph: networks of one
-    class share torch's graph limit, past which torch then runs eagerly instead of raising."""
+    """On a GPU "reduce-overhead" replays a prediction's hundreds of tiny kernels as one CUDA
+    graph per shape; on the CPU the default mode fuses small ops. No fullgraph: networks of one
+    class share torch's graph limit, past which torch runs eagerly instead of raising."""
     cuda = next(net.parameters()).device.type == "cuda"
     return torch.compile(net, mode="reduce-overhead" if cuda else "default", dynamic=False)
 
@@ -68,8 +63,7 @@ class MotionForecaster:
         compile: bool | str = False,
         fps: float = 25.0,
     ):
-        """compile: True, False or "auto" (on CUDA only); off by default, as it has not been
-        reliably faster on the CPU. Each new (batch size, future_len) compiles once."""
+        """compile: True, False or "auto" (CUDA only); off by default: not reliably faster on CPU"""
         if compile not in (True, False, "auto"):
             raise ValueError(f"compile must be true, false or auto, got {compile!r}")
         # torch's own errors: an assertion at the first copy, or every device type listed.
@@ -104,14 +98,11 @@ class MotionForecaster:
             1000 / module.frame_ms,
         )  # fmt: skip
 
-    def _step(self, fps: float | None) -> int:
-        """Every how many input frames one is used: k for frames at k times the model's rate."""
+    def _step(self, fps: float | None) -> int:  # k: every k-th frame at k times the model's rate
         if fps is None:
             return 1
         if isinstance(fps, bool) or not isinstance(fps, numbers.Real) or not fps > 0:
-            raise InferenceInputError(
-                f"fps must be a positive number of frames per second, got {fps!r}"
-            )
+            raise InferenceInputError(f"fps must be a positive number, got {fps!r}")
         step = round(fps / self.fps)
         if step < 1 or abs(fps / self.fps - step) > 1e-6:
             raise InferenceInputError(
@@ -153,18 +144,15 @@ class MotionForecaster:
             )
         if not np.isfinite(x).all():  # here, not on the device, where it would sync
             bad = np.argwhere(~np.isfinite(x))[0].tolist()
-            raise InferenceInputError(
-                f"frames contain NaN or inf (first at index {bad}); clean them"
-            )
+            raise InferenceInputError(f"frames hold NaN or inf (first at {bad}); clean them")
         return x
 
     def _network(self, batch: int, future_len: int) -> nn.Module:
         """The compiled network for a shape it compiled or may still compile, else eager."""
         shape = (batch, future_len)
-        if not self.compiled or shape in self._shapes:
-            return self._run
-        if len(self._shapes) < COMPILED_SHAPES:
+        if self.compiled and len(self._shapes) < COMPILED_SHAPES:
             self._shapes.add(shape)
+        if not self.compiled or shape in self._shapes:
             return self._run
         if not self._warned:
             self._warned = True
@@ -196,7 +184,6 @@ class MotionForecaster:
             raise InferenceInputError(
                 f"frames must be {shape}: the last {T} observed frames; got shape {x.shape}"
             )
-        # The newest frame and every step-th before it.
         x = torch.as_tensor(x[None] if single else x, device=self.device)
         x = x[:, step - 1 :: step].contiguous()
         future_len, batch = _future_len(future_len), x.shape[0]

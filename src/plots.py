@@ -1,8 +1,6 @@
-"""Pictures of motion (stick figures, frame strips, animations) for src.visualize and the
-TensorBoard callback, and error curves. A pose is joint positions (J, 3) after `yz_swap` (z
-up), a motion (T, J, 3): observed frames first, drawn grey, then the future in the row's
-colour. Figures are `matplotlib.figure.Figure` (no pyplot): they render without a display.
-"""
+"""Stick figures, frame strips and animations of motions (T, J, 3) of joint positions after
+`yz_swap` (z up), observed frames grey, the future in the row's colour; and error curves.
+Figures are `matplotlib.figure.Figure` (no pyplot): they render without a display."""
 
 from __future__ import annotations
 
@@ -26,9 +24,8 @@ PALETTE = {
     "red": ("#c62828", "#f28b82"),
     "blue": ("#1f5fb4", "#8ab4f8"),
 }
-# Joints on the body's left, as the reference visualisation colours them (Martinez et al.'s
-# viz.py marks H3.6M joints 1-5 and 24-31 as left; CMU's left leg and arm are the chains at -x
-# in the rest pose). The H3.6M arms both point up in the rest pose, hence explicit lists.
+# Joints on the body's left: H3.6M's 1-5 and 24-31 as Martinez et al.'s viz.py (both arms point
+# up in the rest pose, hence lists), CMU's chains at -x in the rest pose.
 LEFT_JOINTS = {
     "h36m": frozenset([*range(1, 6), *range(24, 32)]),
     "cmu": frozenset([*range(8, 13), *range(30, 38)]),
@@ -65,24 +62,17 @@ def window_rows(
     dm, module, index: int, baseline: bool = True, observed_shown: int = 25,
     name: str | None = None, dataset: str | None = None
 ) -> tuple[list[PoseRow], int, str]:  # fmt: skip
-    """(rows, n_observed, description) of evaluation window `index`: the prediction of `module`
-    (a MotionPredictor, dropout off), the ground truth and (with `baseline`) zero-velocity, each
-    the last `observed_shown` observed frames, then the future. The description names `dataset`
-    (default: the data's own; synthetic data's `dataset_name` reads H3.6M)."""
-    item = dm.val_dataloader().dataset[index]
-    was_training = module.training
+    """(rows, n_observed, description) of evaluation window `index`: `module`'s prediction
+    (dropout off), the ground truth and (`baseline`) zero-velocity, each the last `observed_shown`
+    observed frames then the future. Titled with `dataset` (default: the data's own name)."""
+    item = {k: v.to(module.device) for k, v in dm.val_dataloader().dataset[index].items()}
+    was_training, T = module.training, len(item["future"])
     module.eval()
     try:
-        observed = item["observed"][None].to(module.device)
-        T = item["future"].shape[0]
-        pred = module(observed, T, action=item["action"][None].to(module.device))[0]
+        pred = module(item["observed"][None], T, action=item["action"][None])[0]
     finally:
         module.train(was_training)
-    frames = {
-        "observed": observed[0],
-        "future": item["future"].to(module.device),
-        "prediction": pred,
-    }
+    frames = {"observed": item["observed"], "future": item["future"], "prediction": pred}
     frames = {k: module.normalizer.unnormalize(v).cpu() for k, v in frames.items()}
     obs = frames["observed"][-observed_shown:]
     skeleton = Skeleton.load(module.dataset)
@@ -104,9 +94,8 @@ def window_rows(
 def _axes(fig, rows: int, cols: int, k: int, box, view):
     ax = fig.add_subplot(rows, cols, k, projection="3d")
     lo, hi = box
-    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]))
+    ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]), proj_type="ortho")
     ax.set_box_aspect(tuple(hi - lo), zoom=1.35)
-    ax.set_proj_type("ortho")
     ax.view_init(elev=view[0], azim=view[1])
     ax.set_axis_off()
     return ax
@@ -125,20 +114,17 @@ def draw_skeleton(ax, pose, bones, colors=PALETTE["red"], sides=None, linewidth=
     """One pose (J, 3) in `colors` ((right and spine, left) or one; `sides`: 0/1 per bone); the
     two Line3D objects (right, left), which an animation moves with `set_data_3d`."""
     pair = (colors, colors) if isinstance(colors, str) else colors
-    sides = np.zeros(len(bones), dtype=int) if sides is None else np.asarray(sides)
+    sides = np.zeros(len(bones), dtype=int) if sides is None else sides
     lines = []
     for side in (0, 1):
-        seg = _segments(
-            np.asarray(pose), [b for b, s in zip(bones, sides, strict=True) if s == side]
-        )
-        lines += ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color=pair[side], lw=linewidth)
+        half = [b for b, s in zip(bones, sides, strict=True) if s == side]
+        lines += ax.plot(*_segments(np.asarray(pose), half).T, color=pair[side], lw=linewidth)
     return lines
 
 
 def strip_frames(n_observed: int, n_total: int, step: int = 3, n_before: int = 3) -> list[int]:
     """`n_before` observed frames ending at the last observed one, then every `step`-th future
-    frame counted back from the last (so the first predicted frame shows when step divides the
-    future length - 1)."""
+    frame counted back from the last."""
     if not 0 < n_observed < n_total or step < 1 or n_before < 0:
         raise ValueError(
             f"need 0 < n_observed < n_total, step >= 1, n_before >= 0: got "
@@ -159,8 +145,6 @@ def _prepare(rows, skeleton: Skeleton, n_observed: int):
             raise ValueError(
                 f"row {row.label!r}: positions must be (T={T}, J, 3), got {row.positions.shape}"
             )
-        if row.color not in PALETTE:
-            raise ValueError(f"row {row.label!r}: color {row.color!r} not in {sorted(PALETTE)}")
     if not 0 < n_observed < T:
         raise ValueError(f"n_observed={n_observed} must lie between 1 and T-1={T - 1}")
     bones = skeleton_bones(skeleton)
@@ -210,15 +194,14 @@ def animate(
         ax.set_title(row.label, color=PALETTE[row.color][0], fontsize=10)
         all_lines.append(draw_skeleton(ax, row.positions[0], bones, OBSERVED, sides))
     clock = fig.suptitle("", fontsize=9)
-    by_side = [[b for b, s in zip(bones, sides, strict=True) if s == side] for side in (0, 1)]
+    halves = [[b for b, s in zip(bones, sides, strict=True) if s == side] for side in (0, 1)]
 
     def update(t: int) -> list:
         for row, lines in zip(rows, all_lines, strict=True):
             pair = OBSERVED if t < n_observed else PALETTE[row.color]
-            for side, line in enumerate(lines):
-                seg = _segments(row.positions[t], by_side[side])
-                line.set_data_3d(seg[:, 0], seg[:, 1], seg[:, 2])
-                line.set_color(pair[side])
+            for line, half, color in zip(lines, halves, pair, strict=True):
+                line.set_data_3d(*_segments(row.positions[t], half).T)
+                line.set_color(color)
         ms = (t - (n_observed - 1)) * frame_ms
         phase = "observed" if t < n_observed else "predicted"
         clock.set_text((title + "\n" if title else "") + f"{ms:+.0f} ms ({phase})")
@@ -246,8 +229,6 @@ def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle er
         ax = fig.add_subplot(1, len(panels), k + 1)
         ticks: set[int] = set()
         for n, curve in enumerate(curves):
-            if not curve.values:
-                raise ValueError(f"curve {curve.label!r} has no values")
             xs = sorted(int(x) for x in curve.values)
             ys = np.array([curve.values.get(x, curve.values.get(str(x))) for x in xs])
             ticks.update(xs)
@@ -258,8 +239,7 @@ def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle er
                 ax.fill_between(xs, ys - std, ys + std, color=color, alpha=0.15, lw=0)
         if len(ticks) <= 12:
             ax.set_xticks(sorted(ticks))
-        ax.set(xlabel=xlabel, ylabel=ylabel)
-        ax.set_ylim(bottom=0)
+        ax.set(xlabel=xlabel, ylabel=ylabel, ylim=(0, None))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         if title:  # a long protocol name would run past a 5-inch panel and be cut off
@@ -270,7 +250,5 @@ def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle er
 
 def error_vs_horizon(results, title=None, ylabel="Euler-angle error (rad)", dashed=()) -> Figure:
     """A panel, a line per (label, {ms: value}); the labels in `dashed` dashed."""
-    if not results:
-        raise ValueError("error_vs_horizon: no curves given")
     curves = [Curve(label, v, style="--" if label in dashed else "-") for label, v in results]
     return line_panels([(title, curves)], ylabel=ylabel)

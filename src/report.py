@@ -80,7 +80,7 @@ def _list(value) -> list:
     return [] if value is None else [value] if isinstance(value, str) else list(value)
 
 
-@hydra_entry("report")
+@hydra_entry("report", tidy=False)  # never undo hours of evaluations
 def main(cfg: DictConfig) -> int:
     silence_false_warnings()  # once, not once per evaluation
     if not (protocols := [str(p) for p in _list(cfg.protocols)]):

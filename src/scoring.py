@@ -1,9 +1,7 @@
-"""`src.eval predictions=<file>`: predictions made by any code on the test windows that
-`src.export_windows` wrote, checked and scored (the file format: README, "Scoring a model from
-another code base"). The file stands in for the network in src.eval's test loop (FilePredictor):
-ground truth, metrics and tables are src.eval's own. An action is predicted fully or not at all
-(then reported absent).
-"""
+"""`src.eval predictions=<file>`: predictions by any code of the windows `src.export_windows`
+wrote (format: README, "Scoring a model from another code base"), checked, then standing in for
+the network in src.eval's own test loop (FilePredictor). An action is predicted fully or not at
+all (then reported absent)."""
 
 from __future__ import annotations
 
@@ -55,8 +53,7 @@ def read_predictions(path: str | Path) -> Predictions:
     if not isinstance(npz, np.lib.npyio.NpzFile):
         raise PredictionsError(f"{path} holds one array, not a .npz of named arrays: {SAVE}")
     with npz:
-        missing = [k for k in ("prediction", "window_id") if k not in npz.files]
-        if missing:
+        if missing := [k for k in ("prediction", "window_id") if k not in npz.files]:
             raise PredictionsError(
                 f"{path} has no {' and no '.join(missing)} array (it holds: "
                 f"{', '.join(npz.files) or 'nothing'}); save it with {SAVE}"
@@ -67,22 +64,19 @@ def read_predictions(path: str | Path) -> Predictions:
                 arrays[key] = npz[key]
             except ValueError as err:  # object arrays: loading them would unpickle
                 raise PredictionsError(
-                    f"{path}: {key} is an array of Python objects, which is not loaded (unpickling "
-                    f"can run code); save it as plain numbers or strings, np.asarray(..., "
-                    f"dtype={'np.float32' if key == 'prediction' else 'str'})"
+                    f"{path}: {key} is an array of Python objects, not loaded (unpickling can "
+                    "run code); save plain numbers or strings: np.asarray(..., dtype=float or str)"
                 ) from err
     prediction, ids = arrays.pop("prediction"), arrays.pop("window_id")
     if prediction.dtype.kind not in "fiu" or prediction.ndim != 3 or not len(prediction):
         raise PredictionsError(
-            f"{path}: prediction is a {prediction.dtype} array of shape {prediction.shape}; it "
-            "must hold numbers and it must be (N, T, F) with N >= 1: raw exp-map frames of N "
-            "windows, T future frames each (prediction[i] for window_id[i])"
+            f"{path}: prediction is {prediction.dtype} of shape {prediction.shape}; it must hold "
+            "numbers and it must be (N, T, F) with N >= 1: T raw exp-map frames per window"
         )
     if ids.dtype.kind not in "US" or ids.shape != (len(prediction),):
         raise PredictionsError(
-            f"{path}: window_id is a {ids.dtype} array of shape {ids.shape}, {ids.size} window "
-            f"ids for {len(prediction)} predictions; it must be a 1-D array of strings, one per "
-            "prediction (window_id[i] names the window of prediction[i]): windows.npz's ids"
+            f"{path}: window_id is {ids.dtype} of shape {ids.shape}, {ids.size} window ids for "
+            f"{len(prediction)} predictions; it must be a 1-D array of strings, windows.npz's ids"
         )
     for key, value in arrays.items():
         if value.dtype.kind not in "US" or value.size != 1:
@@ -96,8 +90,7 @@ def read_predictions(path: str | Path) -> Predictions:
         row, frame, col = np.argwhere(bad)[0].tolist()
         raise PredictionsError(
             f"{path}: prediction holds {int(bad.sum())} NaN or inf value(s), the first in window "
-            f"{ids[row]!r} (row {row}), frame {frame}, column {col}; every predicted value must "
-            "be finite"
+            f"{ids[row]!r} (row {row}), frame {frame}, column {col}; predict finite values"
         )
     meta = {key: str(value.astype(str).item()) for key, value in arrays.items()}
     return Predictions(path, prediction.astype(np.float32, copy=False), ids, meta)
@@ -134,16 +127,14 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
             f"(data.future_len): save the first {need}, prediction[:, :{need}]"
         )
     counts = Counter(preds.ids)
-    repeated = [i for i, n in counts.items() if n > 1]
-    if repeated:
+    if repeated := [i for i, n in counts.items() if n > 1]:
         raise PredictionsError(
             f"{path}: window_id {repeated[0]!r} appears {counts[repeated[0]]} times "
             f"({len(repeated)} id(s) repeated); give one prediction per window"
         )
     ours = window_ids(dm.eval_windows)
     known = set(ours)
-    unknown = [i for i in preds.ids if i not in known]
-    if unknown:
+    if unknown := [i for i in preds.ids if i not in known]:
         absent = ", ".join(dm.absent_actions)
         absent = f"; this data copy cannot evaluate {absent}" if absent else ""
         raise PredictionsError(
@@ -164,9 +155,8 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
             )
     if "data_sha256" in preds.meta and preds.meta["data_sha256"] != data_sha256(dm):
         raise PredictionsError(
-            f"{path}: its data_sha256 is not that of the windows here, so they were exported "
-            f"from other data (another copy of the archives, or other data.* settings): "
-            f"predict the windows of {export} run here"
+            f"{path}: its data_sha256 is not that of the windows here: exported from other data "
+            f"(other archives or data.* settings); predict the windows of {export} run here"
         )
     return absent
 
@@ -176,21 +166,18 @@ def published_ref(value: str | None, dataset: str) -> dict | None:
     if value in (None, "", "none"):
         return None
     paper, _, method = str(value).partition(":")
-    if dataset in published_datasets() and paper not in {
-        p for p, _ in find_published(dataset, method)
-    }:
+    papers = {p for p, _ in find_published(dataset, method)}
+    if dataset in published_datasets() and paper not in papers:
         raise ConfigError(
             f"published={value}: no published {dataset} numbers of that paper and method; use "
-            f"PAPER:METHOD as in src/reporting/published_results.csv, e.g. li2018:conv_s2s "
-            "(or published=none)"
+            "PAPER:METHOD of src/reporting/published_results.csv (li2018:conv_s2s) or none"
         )
     return {"paper": paper, "method": method}
 
 
 class FilePredictor(MotionPredictor):
-    """src.eval's test loop with the file's predictions in place of the network's. The columns
-    the protocol ignores (std < 1e-4 over the training frames, §2.1) are set to their training
-    mean, as unnormalising a network's output does: no model is judged on them."""
+    """The file's predictions in place of the network's. The columns the protocol ignores (§2.1)
+    are set to their training mean, as unnormalising a network's output does."""
 
     def __init__(self, preds: Predictions, dm: MotionDataModule, dim_rule: str, config: dict):
         super().__init__(
@@ -217,10 +204,7 @@ def score_predictions(cfg: DictConfig) -> tuple[MotionDataModule, FilePredictor]
     """(datamodule of the windows scored, module to test) for src.eval, from
     `predictions=<file> data=<name> [protocol=...] [published=PAPER:METHOD]`."""
     if cfg.get("ckpt_path") or cfg.get("model") is not None:
-        raise ConfigError(
-            "predictions= scores a file on its own: drop ckpt_path= and model= (score a "
-            "checkpoint or a baseline in a separate src.eval run)"
-        )
+        raise ConfigError("predictions= scores a file on its own: drop ckpt_path= and model=")
     if cfg.get("data") is None:
         raise ConfigError(
             f"say whose test windows {cfg.predictions} predicts: data=h36m|cmu|synthetic "

@@ -1,12 +1,11 @@
-"""Train a motion predictor.
+"""Train a motion predictor; return the best average validation error (Euler, radians), which
+Hydra's sweepers minimise.
 
     python -m src.train model=conv_s2s data=cmu
     python -m src.train experiment=li2018_h36m
     python -m src.train -m model=conv_s2s,gru_s2s data=cmu      (a sweep)
     python -m src.train resume=outputs/train/runs/<run>/<time>   (resume: the run's own settings)
     python -m src.train ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
-
-Returns the best average validation error (Euler, radians), which Hydra's sweepers minimise.
 """
 
 from __future__ import annotations
@@ -28,29 +27,20 @@ from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry
-from src.lit.checkpoints import (
-    BestCheckpoint,
-    LastCheckpoint,
-    TrainingInterrupted,
-    check_compatible,
-    check_normalizer,
-    read_checkpoint,
-    require_resumable,
-)
+from src.lit import checkpoints as ck
 from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
 from src.lit.resume import describe, prepare_training
-from src.lit.run_folders import holds_run, nothing_left_if_refused
+from src.lit.run_folders import holds_run
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
 
 
 def train(cfg: DictConfig) -> float:
-    # A resume continues the run's own config; prepared and checked once (on the command
-    # line, before the run folder was made).
+    # A resume continues the run's own config (checked on the command line, before the folder).
     hydra_cfg = HydraConfig.get() if HydraConfig.initialized() else None
     overrides = list(hydra_cfg.overrides.task) if hydra_cfg else []
     choices = OmegaConf.to_container(hydra_cfg.runtime.choices) if hydra_cfg else {}
@@ -71,10 +61,10 @@ def train(cfg: DictConfig) -> float:
 
     ckpt = done = None
     if cfg.ckpt_path:
-        ckpt = read_checkpoint(cfg.ckpt_path)
-        require_resumable(ckpt, cfg.ckpt_path)
-        check_compatible(ckpt, cfg, cfg.ckpt_path)
-        check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
+        ckpt = ck.read_checkpoint(cfg.ckpt_path)
+        ck.require_resumable(ckpt, cfg.ckpt_path)
+        ck.check_compatible(ckpt, cfg, cfg.ckpt_path)
+        ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
         done = int(ckpt["state_dict"]["iteration"])
         if done >= cfg.iterations:
             raise ConfigError(
@@ -93,20 +83,16 @@ def train(cfg: DictConfig) -> float:
     }
     module = build_module(cfg, dm, run_info=run_info)  # it stops at cfg.iterations
 
-    # Under fast_dev_run Lightning swaps the logger for a dummy, but logger.experiment (the
-    # layout below) would still write an events file.
+    # fast_dev_run swaps the logger for a dummy, but logger.experiment would write events.
     fast_dev_run = bool(cfg.trainer.get("fast_dev_run"))
-    logger = TensorBoardLogger(
-        save_dir=str(out_dir), name="tensorboard", version="", default_hp_metric=False
-    )
+    logger = TensorBoardLogger(str(out_dir), "tensorboard", version="", default_hp_metric=False)
     every = cfg.progress_every_s
     callbacks = [*FrameStripLogger.from_config(cfg)]
     callbacks += [] if every is None else [ProgressLog(cfg.iterations, every)]
-    checkpoints = BestCheckpoint(out_dir / "checkpoints")
-    last = LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
+    checkpoints = ck.BestCheckpoint(out_dir / "checkpoints")
+    last = ck.LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path
-    # Training time over every segment of a run: Timer keeps it in the checkpoint (older
-    # checkpoints lack it: then unknown).
+    # Training time over all of a run's segments: kept in the checkpoint (older ones lack it).
     timer = Timer()
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
@@ -137,8 +123,7 @@ def train(cfg: DictConfig) -> float:
             "best_val_euler_avg": score,
             "best_checkpoint": best_path,
             "last_checkpoint": str(last.path),
-            "final_val_euler_avg": final["euler_avg"],
-            "final_val_mpjpe_avg": final["mpjpe_avg"],
+            **{f"final_val_{k}": value for k, value in final.items()},
             "iterations": int(module.iteration),
             "wall_time_s": round(wall, 1),  # this process's
             "train_time_s": round(timer.time_elapsed("train"), 1) if total_known else None,
@@ -156,13 +141,11 @@ def train(cfg: DictConfig) -> float:
     return score
 
 
-@hydra_entry("train")
+@hydra_entry("train", started="config.yaml")  # refused before it is written: the folder goes
 def main(cfg: DictConfig) -> float:
     try:
-        # Refused before config.yaml is written: the folder claimed for it goes.
-        with nothing_left_if_refused("config.yaml"):
-            score = train(cfg)
-    except TrainingInterrupted as err:
+        score = train(cfg)
+    except ck.TrainingInterrupted as err:
         log.warning("%s", err)
         raise SystemExit(128 + err.signum) from None
     except NonFiniteLossError as err:

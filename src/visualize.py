@@ -1,14 +1,11 @@
-"""`python -m src.visualize`: the `window`-th evaluation window of `action` (protocol §3) as 3D
-stick figures (`<action>_w<window>.gif`, .mp4 with ffmpeg) and a frame strip as Li et al. (2018)
-Figure 3 (`<action>_w<window>_strip.png`): ground truth, the model's fully autoregressive
-prediction and zero-velocity, by forward kinematics with global translation and rotation zeroed
-(§4.1), y and z swapped so the person stands upright. Usage: `--help`.
-"""
+"""`python -m src.visualize` (usage: `--help`): the `window`-th evaluation window of `action`
+(protocol §3) as stick figures (`<action>_w<window>.gif`, .mp4 with ffmpeg) and a frame strip as
+Li et al. (2018) Figure 3 (`..._strip.png`): ground truth, the model's fully autoregressive
+prediction and zero-velocity, global translation and rotation zeroed (§4.1), z up."""
 
 import shutil
 from pathlib import Path
 
-import matplotlib
 from matplotlib.animation import FFMpegWriter, PillowWriter
 from omegaconf import DictConfig
 
@@ -16,7 +13,6 @@ from src.cli import hydra_entry
 from src.data.base import MotionDataModule
 from src.lit.config import check
 from src.lit.factory import ConfigError, build_for_evaluation
-from src.lit.run_folders import nothing_left_if_refused
 from src.metrics.kinematics import Skeleton
 from src.plots import animate, frame_strip, window_rows
 
@@ -41,7 +37,6 @@ def select_window(dm: MotionDataModule, action: str, window: int) -> int:
 
 def visualize(cfg: DictConfig) -> dict[str, Path]:
     """Write the animation and the frame strip of one window; return their paths."""
-    matplotlib.use("Agg")
     check(cfg, "visualize")  # window's range depends on the action: select_window names it
     dm, module = build_for_evaluation(cfg)
     index = select_window(dm, cfg.action, int(cfg.window))
@@ -53,11 +48,8 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
     if cfg.format == "mp4" and not mp4:
         print("format=mp4 needs ffmpeg, which is not installed; writing a GIF instead")
     Path(cfg.paths.output_dir).mkdir(parents=True, exist_ok=True)
-    stem = f"{cfg.paths.output_dir}/{cfg.action}_w{cfg.window}"
-    paths = {
-        "animation": Path(f"{stem}.{'mp4' if mp4 else 'gif'}"),
-        "strip": Path(f"{stem}_strip.png"),
-    }
+    stem, ext = f"{cfg.paths.output_dir}/{cfg.action}_w{cfg.window}", "mp4" if mp4 else "gif"
+    paths = {"animation": Path(f"{stem}.{ext}"), "strip": Path(f"{stem}_strip.png")}
     strip = frame_strip(rows, skeleton, n_obs, dm.frame_ms, step=cfg.strip_step, title=what)
     strip.savefig(paths["strip"])
     writer = FFMpegWriter(fps=fps) if mp4 else PillowWriter(fps=fps)
@@ -66,11 +58,7 @@ def visualize(cfg: DictConfig) -> dict[str, Path]:
     return paths
 
 
-@hydra_entry("visualize")
-def main(cfg: DictConfig) -> None:
-    # Refused before drawing (the pictures are written last): its folder goes.
-    with nothing_left_if_refused(started=None):
-        visualize(cfg)
+main = hydra_entry("visualize")(visualize)  # refused before drawing: its folder goes
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.cli import friendly_errors
+from src.cli import hydra_entry
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
@@ -158,12 +158,12 @@ def test_divergence_before_any_checkpoint_says_there_is_none(monkeypatch, h36m_d
 
 
 def test_project_errors_become_one_line_and_exit_code_2(capsys):
-    @friendly_errors
-    def run():
+    @hydra_entry("train", tidy=False)
+    def run(cfg):
         raise NonFiniteLossError("non-finite loss at training iteration 7: {'loss_g': nan}")
 
     with pytest.raises(SystemExit) as exit_info:
-        run()
+        run(OmegaConf.create())
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     assert err == "error: non-finite loss at training iteration 7: {'loss_g': nan}\n"
