@@ -1,5 +1,5 @@
 """The two ways this project writes where something else may be: a file written whole or not at
-all, and a new name no other process can take. Every writer in src/ goes through these."""
+all, and a new folder no other process can take. Every writer in src/ goes through these."""
 
 from __future__ import annotations
 
@@ -36,14 +36,3 @@ def claim_folder(base: str | os.PathLike) -> Path:
             candidate = base.with_name(f"{base.name}-{n}")
         except FileNotFoundError:
             candidate.parent.mkdir(parents=True, exist_ok=True)
-
-
-def free_path(path: str | os.PathLike) -> Path:
-    """`path`, or `<stem>-1<suffix>`, `-2`, ... where that exists: a default output file name
-    that never writes over an earlier output."""
-    path = Path(path)
-    candidate, n = path, 0
-    while candidate.exists():
-        n += 1
-        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
-    return candidate
