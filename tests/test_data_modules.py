@@ -74,7 +74,7 @@ def test_synthetic_module_attributes(synthetic):
 
 
 def test_normalizer_uses_raw_50hz_training_frames(synthetic, tmp_path):
-    entries = h36m_files([1], synthetic.actions, "train")
+    entries = h36m_files([1], synthetic.actions)
     raw = [read_motion_file(tmp_path / "synthetic" / e.relpath, 99) for e in entries]
     expected = Normalizer.from_sequences(raw)
     assert torch.equal(synthetic.normalizer.mean, expected.mean)

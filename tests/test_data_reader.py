@@ -129,7 +129,7 @@ def test_nan_and_inf_are_rejected_with_line(tmp_path, bad):
 
 
 def test_layout_lists_expected_files_and_reports_missing(tmp_path):
-    entries = h36m_files([5], ["walking", "eating"], "test")
+    entries = h36m_files([5], ["walking", "eating"])
     assert [e.relpath for e in entries] == [
         "h3.6m/dataset/S5/walking_1.txt",
         "h3.6m/dataset/S5/walking_2.txt",
@@ -163,7 +163,7 @@ def counted_parses(monkeypatch):
 
 def _synthetic(tmp_path):
     write_synthetic_h36m(tmp_path, subjects=(1,), actions=("walking", "eating"), raw_frames=20)
-    return [e.relpath for e in h36m_files([1], ["walking", "eating"], "train")]
+    return [e.relpath for e in h36m_files([1], ["walking", "eating"])]
 
 
 def test_cache_hit_after_first_parse(tmp_path, counted_parses):

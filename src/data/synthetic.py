@@ -58,7 +58,7 @@ def write_synthetic_h36m(
         raise DataError(f"raw_frames must be >= 2, got {raw_frames}")
     root = Path(root)
     paths = []
-    for entry in h36m_files(list(subjects), list(actions), "any"):
+    for entry in h36m_files(list(subjects), list(actions)):
         frames = synthetic_motion(entry.subject, entry.action, entry.index, raw_frames, seed)
         text = io.StringIO()
         np.savetxt(text, frames, fmt="%.7f", delimiter=",")
