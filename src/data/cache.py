@@ -9,6 +9,7 @@ import json
 import logging
 import os
 from collections.abc import Sequence
+from contextlib import suppress
 from pathlib import Path
 
 import numpy as np
@@ -31,30 +32,28 @@ def load_sequences(
     data_dir: str | os.PathLike, spec: DatasetSpec, relpaths: Sequence[str]
 ) -> dict[str, np.ndarray]:
     """Raw (50 Hz, all columns) float32 arrays of ``relpaths`` (relative to ``data_dir``), from
-    the cache where it is valid, else parsed (and cached; if the cache folder is not writable,
-    parsed every time, with a warning)."""
+    the cache where it is valid, else parsed and cached (parsed every time, with a warning, if
+    the cache folder is not writable)."""
     data_dir = Path(data_dir)
     folder = cache_dir(data_dir, spec)
     manifest = _read_manifest(folder, spec)
     entries: dict[str, dict] = manifest["files"]
     out: dict[str, np.ndarray] = {}
-    todo: list[tuple[str, os.stat_result]] = []
+    writable, changed = True, False
     for rel in relpaths:
         st = (data_dir / rel).stat() if (data_dir / rel).is_file() else None  # None: reader says
         entry = entries.get(rel)
         if st and entry and (entry["size"], entry["mtime_ns"]) == (st.st_size, st.st_mtime_ns):
-            arr = _load_npy(folder / entry["npy"], entry["frames"], spec.n_columns)
-            if arr is not None:
-                out[rel] = arr
-                continue
-        todo.append((rel, st))
-
-    writable = True
-    if todo:
-        log.info("parsing %d %s text file(s) into the cache %s", len(todo), spec.name, folder)
-    for rel, st in todo:
+            with suppress(OSError, ValueError, EOFError):
+                arr = np.load(folder / entry["npy"], allow_pickle=False)
+                if arr.dtype == np.float32 and arr.shape == (entry["frames"], spec.n_columns):
+                    out[rel] = arr
+                    continue
         # stat taken before reading: if the file changes while we read it, the entry is stale
         # and the next run parses it again.
+        if not changed:
+            log.info("parsing %s text files into the cache %s", spec.name, folder)
+        changed = True
         arr = out[rel] = read_motion_file(data_dir / rel, spec.n_columns)
         if writable:
             npy = rel.replace("/", "__").removesuffix(".txt") + ".npy"
@@ -70,7 +69,7 @@ def load_sequences(
     gone = [rel for rel in entries if not (data_dir / rel).is_file()]
     for rel in gone:
         (folder / entries.pop(rel)["npy"]).unlink(missing_ok=True)
-    if (todo or gone) and writable:
+    if (changed or gone) and writable:
         text = json.dumps(manifest, indent=1, sort_keys=True)
         try:
             atomic_write(folder / MANIFEST, lambda tmp: tmp.write_text(text))
@@ -80,20 +79,10 @@ def load_sequences(
 
 
 def _read_manifest(folder: Path, spec: DatasetSpec) -> dict:
-    try:
+    with suppress(OSError, ValueError, LookupError, TypeError, AttributeError):  # start afresh
         manifest = json.loads((folder / MANIFEST).read_text())
         files = manifest["files"]
         same = (manifest["version"], manifest["n_columns"]) == (CACHE_VERSION, spec.n_columns)
         if same and all({"size", "mtime_ns", "frames", "npy"} <= e.keys() for e in files.values()):
             return manifest
-    except (OSError, ValueError, LookupError, TypeError, AttributeError):
-        pass  # unreadable or of another version: start afresh
     return dict(version=CACHE_VERSION, dataset=spec.name, n_columns=spec.n_columns, files={})
-
-
-def _load_npy(path: Path, frames: int, n_columns: int) -> np.ndarray | None:
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError):
-        return None
-    return arr if arr.dtype == np.float32 and arr.shape == (frames, n_columns) else None
