@@ -32,16 +32,12 @@ class Normalizer(nn.Module):
         self.register_buffer("used", used.to(torch.bool).clone())
 
     @classmethod
-    def from_frames(cls, frames: np.ndarray, threshold: float = STD_THRESHOLD) -> Normalizer:
-        """Statistics of ``frames`` (N, F), e.g. all raw training frames stacked."""
-        return cls.from_sequences([frames], threshold)
-
-    @classmethod
     def from_sequences(
         cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD
     ) -> Normalizer:
-        """``from_frames(np.concatenate(sequences))`` without the copy. Two float64 passes (mean,
-        squared deviations): the near-constant columns, which decide the used set, come exact."""
+        """Statistics of the frames of all ``sequences`` (each (N_i, F)), without concatenating
+        them. Two float64 passes (mean, squared deviations): the near-constant columns, which
+        decide the used set, come exact."""
         seqs = [np.asarray(s) for s in sequences]
         n = sum(len(s) for s in seqs)
         if n == 0:
