@@ -73,6 +73,4 @@ def strided_starts(
     lengths: Sequence[int], window_len: int, stride: int, low: int = 0
 ) -> list[tuple[int, int]]:
     """Every (sequence index, start) with start in range(low, length - window_len, stride)."""
-    if stride < 1:
-        raise DataError(f"the eval stride must be >= 1, got {stride}")
     return [(i, s) for i, t in enumerate(lengths) for s in range(low, t - window_len, stride)]
