@@ -85,8 +85,10 @@ def test_normalizer_uses_raw_50hz_training_frames(synthetic, tmp_path):
 def test_test_sequence_is_downsampled_raw(synthetic, tmp_path):
     raw = read_motion_file(tmp_path / "synthetic/h3.6m/dataset/S5/smoking_2.txt", 99)
     np.testing.assert_array_equal(synthetic.test_sequence("smoking", 1), raw[::2])
-    with pytest.raises(DataError, match="not configured"):
+    with pytest.raises(DataError, match="greeting has no test sequence 0: 0 are loaded"):
         synthetic.test_sequence("greeting")
+    with pytest.raises(DataError, match="smoking has no test sequence 2: 2 are loaded"):
+        synthetic.test_sequence("smoking", 2)
 
 
 def test_srnn_eval_windows_and_their_content(synthetic):

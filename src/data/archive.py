@@ -214,20 +214,3 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
             "with)."
         ) from None
 
-
-def check_missing(spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool):
-    """Full protocol: raise listing every missing file. Partial mode: the datamodule's setup
-    warns, saying what it reads and does without them."""
-    if not missing or allow_partial:
-        return
-    listing = "\n  ".join(missing)
-    raise DataError(
-        f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
-        f"  {listing}\n"
-        f"The full protocol needs all of them. Fix: get the complete archive "
-        f"({_how_to_get(spec)}), delete {data_dir / spec.root} and run again to unpack it; "
-        f"or, for a copy that stays partial, export MOTION_ALLOW_PARTIAL=true (or add "
-        f"paths.allow_partial=true) to use the files that exist and report the actions "
-        f"that cannot be evaluated as absent.",
-        missing,
-    )

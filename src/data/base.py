@@ -1,9 +1,8 @@
-"""The LightningDataModule shared by H3.6M and CMU: text files -> (cache) raw 50 Hz arrays ->
-Normalizer of the raw training frames (protocol §2.1) -> even frames (§1.3) -> normalised used
-dimensions -> training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or the
-``random`` / ``strided`` protocols). A partial copy of the data is refused, listing every missing
-file, or with ``allow_partial`` used as it is, each action that cannot be evaluated reported in
-``absent_actions`` with the reason: absent, never zero."""
+"""The LightningDataModule of H3.6M and CMU: text files -> (cache) raw 50 Hz arrays -> Normalizer
+of the raw training frames (protocol §2.1) -> even frames (§1.3) -> normalised used dimensions ->
+training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or the ``random`` /
+``strided`` protocols). A partial copy of the data is refused, listing every missing file, or with
+``allow_partial`` used as it is, each action it cannot evaluate in ``absent_actions``."""
 
 from __future__ import annotations
 
@@ -18,7 +17,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from src.data.archive import check_missing, ensure_dataset, resolve_data_dir
+from src.data.archive import ensure_dataset, resolve_data_dir
 from src.data.cache import load_sequences
 from src.data.datasets import TrainWindowSampler, WindowDataset
 from src.data.errors import DataError
@@ -156,25 +155,20 @@ class MotionDataModule(L.LightningDataModule):
         train, test = self.expected_files()
         if self._eval_only:
             train = []
-        self.missing_files = missing_files(self.data_dir, train + test)
-        check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
+        self.missing_files = missing = missing_files(self.data_dir, train + test)
+        if missing and not self.allow_partial:
+            spec = self.spec
+            raise DataError(
+                f"{len(missing)} expected {spec.name} file(s) are missing under {self.data_dir}:"
+                "\n  " + "\n  ".join(missing) + "\nThe full protocol needs all of them. Fix: get "
+                f"the complete archive (download {spec.source} ({spec.url})), delete "
+                f"{self.data_dir / spec.root} and run again to unpack it; or, for a copy that "
+                "stays partial, export MOTION_ALLOW_PARTIAL=true (or add "
+                "paths.allow_partial=true) to use the files that exist and report the actions "
+                "that cannot be evaluated as absent.",
+                missing,
+            )
         return train, test
-
-    def _warn_missing(self, train: list[FileEntry]) -> None:
-        """data.allow_partial=true: what is missing, counted by kind, and what is done."""
-        n_train = sum(e.relpath in self.missing_files for e in train)
-        if self._eval_only:
-            kind, doing = "test ", "evaluating with"
-            counted = "training files are not needed: the checkpoint holds the normalisation"
-        else:
-            kind, counted = "", f"{n_train} training, {len(self.missing_files) - n_train} test"
-            doing = "training on" if self._stage == "fit" else "normalising and evaluating with"
-        log.warning(
-            f"data.allow_partial=true: {len(self.missing_files)} {self.spec.name} {kind}file(s) "
-            f"are missing under {self.data_dir} ({counted}); {doing} the files that exist, the "
-            "actions without their test files reported as absent:\n  "
-            + "\n  ".join(self.missing_files)
-        )
 
     def setup(self, stage: str | None = None) -> None:
         """Load, normalise and window the data (once; later calls are no-ops)."""
@@ -183,8 +177,22 @@ class MotionDataModule(L.LightningDataModule):
         self._stage = stage
         train, test = self._locate()
         missing = set(self.missing_files)
-        if missing:  # only with allow_partial: _locate raised otherwise
-            self._warn_missing(train)
+        if (
+            missing
+        ):  # allow_partial (else _locate raised): what is missing, by kind, and what is done
+            n_train = sum(e.relpath in missing for e in train)
+            if self._eval_only:
+                kind, doing = "test ", "evaluating with"
+                counted = "training files are not needed: the checkpoint holds the normalisation"
+            else:
+                kind, counted = "", f"{n_train} training, {len(missing) - n_train} test"
+                doing = "training on" if stage == "fit" else "normalising and evaluating with"
+            log.warning(
+                f"data.allow_partial=true: {len(missing)} {self.spec.name} {kind}file(s) are "
+                f"missing under {self.data_dir} ({counted}); {doing} the files that exist, the "
+                "actions without their test files reported as absent:\n  "
+                + "\n  ".join(self.missing_files)
+            )
         train = [e for e in train if e.relpath not in missing]
         present_test = [e for e in test if e.relpath not in missing]
         raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
@@ -290,7 +298,7 @@ class MotionDataModule(L.LightningDataModule):
             TRAIN_START_LOW[self.dataset_name],
             self.batch_size,
             self.steps_per_epoch,
-            _positive("draws_per_step", self.draws_per_step),
+            self.draws_per_step,
             self.seed,
         )
         # A resume from a checkpoint written between validations continues its epoch.
@@ -314,12 +322,11 @@ class MotionDataModule(L.LightningDataModule):
         """Downsampled raw (unnormalised, F columns) test sequence ``index`` of ``action``:
         index 0 is subaction 1 on H3.6M and file ``{action}_1`` on CMU."""
         self._require_setup()
-        if action not in self._test_entries:
-            raise DataError(f"action {action!r} is not configured; configured: {self.actions}")
-        entries = self._test_entries[action]
+        entries = self._test_entries.get(action, [])
         if not 0 <= index < len(entries):
             raise DataError(
-                f"{action} has {len(entries)} test sequence(s); index {index} is out of range"
+                f"{action} has no test sequence {index}: {len(entries)} are loaded (configured "
+                f"actions: {', '.join(self.actions)})"
             )
         entry = entries[index]
         if entry.key not in self._test_raw:
