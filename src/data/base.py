@@ -165,8 +165,7 @@ class MotionDataModule(L.LightningDataModule):
                 f"{self.data_dir / spec.root} and run again to unpack it; or, for a copy that "
                 "stays partial, export MOTION_ALLOW_PARTIAL=true (or add "
                 "paths.allow_partial=true) to use the files that exist and report the actions "
-                "that cannot be evaluated as absent.",
-                missing,
+                "that cannot be evaluated as absent."
             )
         return train, test
 
@@ -177,9 +176,8 @@ class MotionDataModule(L.LightningDataModule):
         self._stage = stage
         train, test = self._locate()
         missing = set(self.missing_files)
-        if (
-            missing
-        ):  # allow_partial (else _locate raised): what is missing, by kind, and what is done
+        # allow_partial (else _locate raised): what is missing, by kind, and what is done.
+        if missing:
             n_train = sum(e.relpath in missing for e in train)
             if self._eval_only:
                 kind, doing = "test ", "evaluating with"
@@ -213,8 +211,7 @@ class MotionDataModule(L.LightningDataModule):
         self._train_dataset = WindowDataset(
             seqs, [label[e.action] for e in train], self.observed_len, self.future_len
         )
-        trained = {e.action for e in train}
-        self.untrained_actions = [a for a in self.actions if a not in trained]
+        self.untrained_actions = [a for a in self.actions if all(e.action != a for e in train)]
         if self.untrained_actions and not self._eval_only:
             log.warning(
                 "no training file for action(s) %s: they are evaluated but never trained on",
@@ -275,7 +272,6 @@ class MotionDataModule(L.LightningDataModule):
         return windows
 
     def _loader(self, dataset: WindowDataset, **kwargs) -> DataLoader:
-        trainer = getattr(self, "trainer", None)
         return DataLoader(
             dataset,
             num_workers=self.num_workers,
@@ -286,12 +282,12 @@ class MotionDataModule(L.LightningDataModule):
             # continues (mid-epoch), so that draw would shift every later mask.
             generator=torch.Generator().manual_seed(self.seed),
             # Pinned batches let the Trainer's copy to the GPU run without blocking the host.
-            pin_memory=trainer is not None and trainer.strategy.root_device.type == "cuda",
+            pin_memory=self.trainer is not None
+            and self.trainer.strategy.root_device.type == "cuda",
             **kwargs,
         )
 
     def train_dataloader(self) -> DataLoader:
-        self._require_setup()
         sampler = TrainWindowSampler(
             self._train_lengths,
             self.window_len,
@@ -307,7 +303,6 @@ class MotionDataModule(L.LightningDataModule):
 
     def val_dataloader(self) -> DataLoader:
         """The test windows: the protocol has no validation split (protocol §8)."""
-        self._require_setup()
         return self._loader(self._eval_dataset, batch_size=self.eval_batch_size, shuffle=False)
 
     test_dataloader = val_dataloader

@@ -33,8 +33,7 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
     if not path.is_file():
         raise DataError(
             f"{path}: motion file not found (fix: check data.data_dir, or unpack the dataset "
-            "archive again by deleting the unpacked folder)",
-            missing=[str(path)],
+            "archive again by deleting the unpacked folder)"
         )
     if path.stat().st_size == 0:
         raise DataError(f"{path}: file is empty ({_FIX})")
