@@ -16,6 +16,7 @@ import zlib
 from pathlib import Path, PurePosixPath
 
 from src.data.errors import DataError
+from src.data.files import atomic_write
 from src.data.layout import SPECS, DatasetSpec
 
 log = logging.getLogger(__name__)
@@ -89,29 +90,27 @@ def _how_to_get(spec: DatasetSpec) -> str:
 
 
 def download(url: str, dest: Path) -> Path:
-    """Download ``url`` to ``dest`` (via a ``.part`` file); reuse ``dest`` if already there."""
+    """Download ``url`` to ``dest`` (atomically); reuse ``dest`` if already there."""
     if dest.is_file() and zipfile.is_zipfile(dest):
         return dest
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    part = dest.with_name(dest.name + f".part-{os.getpid()}")
     log.warning("downloading %s to %s (data.archive is a URL)", url, dest)
-    try:
-        with urllib.request.urlopen(url, timeout=60) as response, open(part, "wb") as out:
-            shutil.copyfileobj(response, out, 1 << 20)
-    except OSError as exc:  # URLError and HTTPError are OSErrors
-        part.unlink(missing_ok=True)
-        raise DataError(
-            f"could not download {url}: {exc} (fix: download it by hand and pass "
-            f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
-        ) from None
-    if not zipfile.is_zipfile(part):
-        part.unlink(missing_ok=True)
-        raise DataError(
-            f"{url} did not return a zip archive (an error page?) (fix: download it by hand and "
-            f"pass data.archive=<local path>)"
-        )
-    os.replace(part, dest)
-    return dest
+
+    def fetch(part: Path) -> None:
+        try:
+            with urllib.request.urlopen(url, timeout=60) as response, open(part, "wb") as out:
+                shutil.copyfileobj(response, out, 1 << 20)
+        except OSError as exc:  # URLError and HTTPError are OSErrors
+            raise DataError(
+                f"could not download {url}: {exc} (fix: download it by hand and pass "
+                f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
+            ) from None
+        if not zipfile.is_zipfile(part):
+            raise DataError(
+                f"{url} did not return a zip archive (an error page?) (fix: download it by hand "
+                "and pass data.archive=<local path>)"
+            )
+
+    return atomic_write(dest, fetch)
 
 
 def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, dataset) -> None:
@@ -213,4 +212,3 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
             f"`unzip -t {archive.name}` (or compare its sha256 with the MANIFEST your copy came "
             "with)."
         ) from None
-
