@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 
 from src.data import archive as archive_mod
-from src.data import cache as cache_mod
+from src.data import reader as reader_mod
 from src.data.archive import ensure_dataset, unpack_archive
-from src.data.cache import cache_dir, load_sequences
 from src.data.errors import DataError
 from src.data.layout import CMU, H36M, h36m_files, missing_files
-from src.data.reader import read_motion_file
+from src.data.reader import cache_dir, load_sequences, read_motion_file
 from src.data.synthetic import write_synthetic_h36m
 
 
@@ -151,13 +150,13 @@ def test_layout_lists_expected_files_and_reports_missing(tmp_path):
 def counted_parses(monkeypatch):
     """Record which files the cache actually parses."""
     calls: list[str] = []
-    real = cache_mod.read_motion_file
+    real = reader_mod.read_motion_file
 
     def spy(path, n_columns):
         calls.append(Path(path).name)
         return real(path, n_columns)
 
-    monkeypatch.setattr(cache_mod, "read_motion_file", spy)
+    monkeypatch.setattr(reader_mod, "read_motion_file", spy)
     return calls
 
 

@@ -14,12 +14,11 @@ import numpy as np
 import pytest
 import torch
 
-from src.data.cache import load_sequences
 from src.data.cmu import CMUDataModule
 from src.data.errors import DataError
 from src.data.h36m import H36MDataModule
 from src.data.layout import H36M, H36M_ACTIONS, h36m_files
-from src.data.reader import read_motion_file
+from src.data.reader import load_sequences, read_motion_file
 from src.data.synthetic import H36M_USED_COLUMNS
 from src.data.windows import srnn_h36m_starts
 

@@ -6,6 +6,7 @@ training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or 
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 from collections import Counter
@@ -18,11 +19,11 @@ import torch
 from torch.utils.data import DataLoader
 
 from src.data.archive import ensure_dataset, resolve_data_dir
-from src.data.cache import load_sequences
 from src.data.datasets import TrainWindowSampler, WindowDataset
 from src.data.errors import DataError
 from src.data.layout import DatasetSpec, FileEntry, missing_files, parse_actions
 from src.data.normalization import Normalizer
+from src.data.reader import load_sequences
 from src.data.windows import TRAIN_START_LOW, random_starts, strided_starts
 
 log = logging.getLogger(__name__)
@@ -327,3 +328,43 @@ class MotionDataModule(L.LightningDataModule):
         if entry.key not in self._test_raw:
             raise DataError(f"{self.data_dir / entry.relpath}: test file is missing")
         return self._test_raw[entry.key].copy()
+
+
+def windows_sha256(ids: Iterable[str], frames: Iterable[np.ndarray]) -> str:
+    """SHA-256 over each window's id and its observed + future frames (float32, C order), in
+    the protocol's order: equal for equal windows, whoever computes it from whatever copy."""
+    digest = hashlib.sha256()
+    for name, window in zip(ids, frames, strict=True):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(window, dtype=np.float32).tobytes())
+    return digest.hexdigest()
+
+
+def data_sha256(dm: MotionDataModule) -> str:
+    """`windows_sha256` of a set-up datamodule's evaluation windows."""
+    ids = window_ids(dm.eval_windows)
+    return windows_sha256(ids, (dm.raw_window(i) for i in range(len(ids))))
+
+
+def window_arrays(dm: MotionDataModule, dataset: str) -> dict[str, np.ndarray]:
+    """The protocol's test windows as plain arrays for models outside this project (written by
+    `python -m src.export_windows`, checked against predictions by `src.scoring`), in the
+    protocol's order (action by action, then as drawn), of a set-up datamodule:
+    - ``observed`` (N, observed_len, F), ``future`` (N, future_len, F): raw exp-map frames,
+      float32, downsampled as everywhere in the protocol (§1.3); F = 99 on H3.6M, 117 on CMU;
+    - ``action`` (N,) and ``window_id`` (N,) strings (`window_ids`);
+    - metadata, 0-d arrays: ``dataset`` (`dataset`, the data config's name: ``synthetic`` is in
+      the H3.6M format but is not H3.6M), ``protocol``, ``fps`` (25, which the tables' horizons
+      assume, on CMU too, protocol §1.5), ``data_sha256`` (see `windows_sha256`)."""
+    frames = np.stack([dm.raw_window(i) for i in range(len(dm.eval_windows))])
+    ids = window_ids(dm.eval_windows)
+    return {
+        "observed": frames[:, : dm.observed_len],
+        "future": frames[:, dm.observed_len :],
+        "action": np.array([w.action for w in dm.eval_windows]),
+        "window_id": np.array(ids),
+        "dataset": np.array(dataset),
+        "protocol": np.array(dm.eval_protocol),
+        "fps": np.array(1000.0 / dm.frame_ms),
+        "data_sha256": np.array(windows_sha256(ids, frames)),
+    }
