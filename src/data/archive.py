@@ -183,7 +183,7 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
 def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
     """Write the dataset members of ``archive`` under ``tmp``; a member that does not match
     its CRC (or does not decompress) raises a DataError naming it."""
-    member = None  # the member being read, named when the archive turns out damaged
+    member = None  # the member last read, named when the archive turns out damaged
     try:
         with zipfile.ZipFile(archive) as zf:
             for info in zf.infolist():
@@ -203,7 +203,6 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
                 member = info.filename
                 with zf.open(info) as src, open(dest, "wb") as out:
                     shutil.copyfileobj(src, out, 1 << 20)
-                member = None
     except (zipfile.BadZipFile, zlib.error, EOFError) as err:
         where = f"member {member!r}" if member else "its directory"
         raise DataError(

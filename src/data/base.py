@@ -163,10 +163,9 @@ class MotionDataModule(L.LightningDataModule):
                 f"{len(missing)} expected {spec.name} file(s) are missing under {self.data_dir}:"
                 "\n  " + "\n  ".join(missing) + "\nThe full protocol needs all of them. Fix: get "
                 f"the complete archive (download {spec.source} ({spec.url})), delete "
-                f"{self.data_dir / spec.root} and run again to unpack it; or, for a copy that "
-                "stays partial, export MOTION_ALLOW_PARTIAL=true (or add "
-                "paths.allow_partial=true) to use the files that exist and report the actions "
-                "that cannot be evaluated as absent."
+                f"{self.data_dir / spec.root} and run again; or, for a copy that stays partial, "
+                "export MOTION_ALLOW_PARTIAL=true (or paths.allow_partial=true) to use the files "
+                "that exist and report the actions that cannot be evaluated as absent."
             )
         return train, test
 
@@ -277,10 +276,8 @@ class MotionDataModule(L.LightningDataModule):
             dataset,
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
-            # A generator of the loader's own: creating an iterator draws a base seed for the
-            # workers, which would otherwise come from the global generator that the dropout
-            # masks use. A resumed run creates its iterator at another point than the run it
-            # continues (mid-epoch), so that draw would shift every later mask.
+            # Its own generator for the workers' base seed: drawn from the global one, which the
+            # dropout masks use, it would shift every later mask of a run resumed mid-epoch.
             generator=torch.Generator().manual_seed(self.seed),
             # Pinned batches let the Trainer's copy to the GPU run without blocking the host.
             pin_memory=self.trainer is not None

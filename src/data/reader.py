@@ -98,10 +98,6 @@ CACHE_VERSION = 1
 MANIFEST = "manifest.json"
 
 
-def cache_dir(data_dir: str | os.PathLike, spec: DatasetSpec) -> Path:
-    return Path(data_dir) / "cache" / spec.name
-
-
 def load_sequences(
     data_dir: str | os.PathLike, spec: DatasetSpec, relpaths: Sequence[str]
 ) -> dict[str, np.ndarray]:
@@ -109,7 +105,7 @@ def load_sequences(
     the cache where it is valid, else parsed and cached (parsed every time, with a warning, if
     the cache folder is not writable)."""
     data_dir = Path(data_dir)
-    folder = cache_dir(data_dir, spec)
+    folder = data_dir / "cache" / spec.name
     manifest = _read_manifest(folder, spec)
     entries: dict[str, dict] = manifest["files"]
     out: dict[str, np.ndarray] = {}

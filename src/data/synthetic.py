@@ -65,9 +65,8 @@ def write_synthetic_h36m(
         data = text.getvalue().encode()
         path = root / entry.relpath
         paths.append(path)
-        if path.is_file() and path.read_bytes() == data:
-            continue
-        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
+        if not (path.is_file() and path.read_bytes() == data):
+            atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
     return paths
 
 
