@@ -26,16 +26,14 @@ DATA_DIR_ENV = "MOTION_DATA_DIR"
 
 
 def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path:
-    """``data_dir`` if given, else ``$MOTION_DATA_DIR``, else ``./data``."""
     return Path(data_dir or os.environ.get(DATA_DIR_ENV) or "data").expanduser()
 
 
 def ensure_dataset(
     dataset: str | DatasetSpec, data_dir: str | os.PathLike | None, archive=None, archive_dir=None
 ) -> Path:
-    """Make sure the dataset is unpacked under ``data_dir`` and return ``data_dir``; raise a
-    DataError saying what to download and where to put it if nothing is found. ``archive``: a
-    zip's path, its folder or URL; ``archive_dir``: a folder that may hold the zip."""
+    """Unpack the dataset under ``data_dir`` unless it is there; return ``data_dir``. ``archive``:
+    a zip's path, its folder or URL; ``archive_dir``: a folder that may hold the zip."""
     spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     data_dir = resolve_data_dir(data_dir)
     if not (data_dir / spec.marker).is_dir():

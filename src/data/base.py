@@ -1,8 +1,7 @@
-"""The LightningDataModule of H3.6M and CMU: text files -> (cache) raw 50 Hz arrays -> Normalizer
-of the raw training frames (protocol §2.1) -> even frames (§1.3) -> normalised used dimensions ->
-training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or the ``random`` /
-``strided`` protocols). A partial copy of the data is refused, listing every missing file, or with
-``allow_partial`` used as it is, each action it cannot evaluate in ``absent_actions``."""
+"""The LightningDataModule of H3.6M and CMU: text files -> (cached) raw 50 Hz arrays -> Normalizer
+of the raw training frames (§2.1) -> even frames (§1.3) -> normalised used dimensions -> training
+windows (§1.4, §1.5), evaluation windows (§3, or ``random`` / ``strided``) and their export. A
+partial copy is refused; with ``allow_partial`` the actions it cannot evaluate are reported."""
 
 from __future__ import annotations
 
@@ -344,15 +343,13 @@ def data_sha256(dm: MotionDataModule) -> str:
 
 
 def window_arrays(dm: MotionDataModule, dataset: str) -> dict[str, np.ndarray]:
-    """The protocol's test windows as plain arrays for models outside this project (written by
-    `python -m src.export_windows`, checked against predictions by `src.scoring`), in the
-    protocol's order (action by action, then as drawn), of a set-up datamodule:
+    """A set-up datamodule's test windows as plain arrays for outside models (`src.export_windows`
+    writes them, `src.scoring` checks predictions against them), in the protocol's order:
     - ``observed`` (N, observed_len, F), ``future`` (N, future_len, F): raw exp-map frames,
-      float32, downsampled as everywhere in the protocol (§1.3); F = 99 on H3.6M, 117 on CMU;
-    - ``action`` (N,) and ``window_id`` (N,) strings (`window_ids`);
-    - metadata, 0-d arrays: ``dataset`` (`dataset`, the data config's name: ``synthetic`` is in
-      the H3.6M format but is not H3.6M), ``protocol``, ``fps`` (25, which the tables' horizons
-      assume, on CMU too, protocol §1.5), ``data_sha256`` (see `windows_sha256`)."""
+      float32, downsampled as everywhere (§1.3); F = 99 on H3.6M, 117 on CMU;
+    - ``action``, ``window_id`` (`window_ids`): (N,) strings; 0-d metadata: ``dataset`` (the data
+      config's name: ``synthetic`` is not H3.6M), ``protocol``, ``fps`` (25, on CMU too, as the
+      tables' horizons assume, protocol §1.5), ``data_sha256`` (`windows_sha256`)."""
     frames = np.stack([dm.raw_window(i) for i in range(len(dm.eval_windows))])
     ids = window_ids(dm.eval_windows)
     return {

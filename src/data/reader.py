@@ -1,11 +1,10 @@
 """Read the exp-map motion text files (protocol §1.1, §1.5: one raw frame per line, 99 (H3.6M)
-or 117 (CMU) comma-separated numbers, no header) into float32 arrays. numpy's C parser does the
-work (about 10 s for all of H3.6M on one core); only when it fails or returns something wrong
-is the file read again line by line, to report the first bad line with its number.
-Each file is parsed once, its array kept under ``<data_dir>/cache/<dataset>/``: one ``.npy`` per
-file plus ``manifest.json`` with each source's size and ``mtime_ns``, so a changed, new or
-vanished source updates just its own entry. Writes are atomic; a cache file that does not read
-back with the right shape is parsed again."""
+or 117 (CMU) comma-separated numbers, no header) into float32 arrays with numpy's C parser (about
+10 s for all of H3.6M on one core); a file it fails on is read again line by line, to report the
+first bad line. Each file is parsed once: ``<data_dir>/cache/<dataset>/`` holds one ``.npy`` per
+file and ``manifest.json`` with each source's size and ``mtime_ns``, so a changed, new or vanished
+source updates its own entry only. Writes are atomic; a cache file that does not read back right
+is parsed again."""
 
 from __future__ import annotations
 
@@ -27,10 +26,9 @@ from src.data.layout import DatasetSpec
 log = logging.getLogger(__name__)
 
 _F32_MAX = float(np.finfo(np.float32).max)
-# Plain ASCII decimal notation, what numpy's parser takes: Python's float() alone would also
-# accept "1_0" or non-ASCII digits, which only a damaged file contains.
-_NUMBER = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", re.ASCII)
-_NON_FINITE = re.compile(r"[+-]?(nan|inf|infinity)", re.IGNORECASE)
+# Plain ASCII decimal notation, what numpy's parser takes (nan and inf are refused later, by
+# name): Python's float() alone would also accept "1_0" or non-ASCII digits.
+_NUMBER = re.compile(r"[+-]?((\d+\.?\d*|\.\d+)(e[+-]?\d+)?|nan|inf(inity)?)", re.ASCII | re.I)
 _FIX = (
     "fix: replace the file with the copy from the original archive, "
     "or delete it and run with data.allow_partial=true"
@@ -78,7 +76,7 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
                     f"{len(tokens)}{hint} ({_FIX})"
                 )
             for col, token in enumerate(tokens, start=1):
-                if not (_NUMBER.fullmatch(token) or _NON_FINITE.fullmatch(token)):
+                if not _NUMBER.fullmatch(token):
                     raise DataError(
                         f"{path}:{lineno}: column {col} holds {token[:40]!r}, which is not a "
                         f"number ({_FIX})"
@@ -102,8 +100,7 @@ def load_sequences(
     data_dir: str | os.PathLike, spec: DatasetSpec, relpaths: Sequence[str]
 ) -> dict[str, np.ndarray]:
     """Raw (50 Hz, all columns) float32 arrays of ``relpaths`` (relative to ``data_dir``), from
-    the cache where it is valid, else parsed and cached (parsed every time, with a warning, if
-    the cache folder is not writable)."""
+    the cache where valid, else parsed and cached (if the cache is not writable: not cached)."""
     data_dir = Path(data_dir)
     folder = data_dir / "cache" / spec.name
     manifest = _read_manifest(folder, spec)

@@ -51,9 +51,8 @@ def write_synthetic_h36m(
     raw_frames: int = 400,
     seed: int = 0,
 ) -> list[Path]:
-    """Write the synthetic files under ``root`` (the data_dir); return their paths. A file that
-    already holds exactly these frames is left alone (its parsed cache stays valid); one
-    written with other settings (``raw_frames``, ``seed``) is replaced."""
+    """Write the synthetic files under ``root`` (the data_dir); return their paths. One that
+    holds other frames (other ``raw_frames``, ``seed``) is replaced, the others left alone."""
     if raw_frames < 2:
         raise DataError(f"raw_frames must be >= 2, got {raw_frames}")
     root = Path(root)
@@ -71,9 +70,8 @@ def write_synthetic_h36m(
 
 
 class SyntheticDataModule(H36MDataModule):
-    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic`` (written when absent):
-    train subject 1, test subject 5, actions walking, eating, smoking by default. Every other
-    argument is H36MDataModule's (the archive ones are never needed)."""
+    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic``; by default train
+    subject 1, test subject 5, actions walking, eating, smoking (the archive is never needed)."""
 
     def __init__(
         self,
