@@ -203,12 +203,11 @@ class MotionDataModule(L.LightningDataModule):
         normalizer = self._given_normalizer or Normalizer.from_sequences(
             [raw[e.relpath] for e in train]
         )
-        label = {a: i for i, a in enumerate(self.actions)}
         frames = [torch.from_numpy(raw[e.relpath][::2].copy()) for e in train]  # even frames, §1.3
         seqs = [normalizer.normalize(f) for f in frames]
         self._train_lengths = [len(s) for s in seqs]
         self._train_dataset = WindowDataset(
-            seqs, [label[e.action] for e in train], self.observed_len, self.future_len
+            seqs, [self.actions.index(e.action) for e in train], self.observed_len, self.future_len
         )
         self.untrained_actions = [a for a in self.actions if all(e.action != a for e in train)]
         if self.untrained_actions and not self._eval_only:
@@ -246,7 +245,7 @@ class MotionDataModule(L.LightningDataModule):
                 "test files listed above)"
             )
         seqs = {k: normalizer.normalize(torch.from_numpy(f)) for k, f in self._test_raw.items()}
-        labels = {e.key: label[e.action] for e in present_test}
+        labels = {e.key: self.actions.index(e.action) for e in present_test}
         pairs = [(w.sequence, w.start) for w in self.eval_windows]
         self._eval_dataset = WindowDataset(seqs, labels, self.observed_len, self.future_len, pairs)
         self.normalizer = normalizer

@@ -45,8 +45,6 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
             f"{path}: motion file not found (fix: check data.data_dir, or unpack the dataset "
             "archive again by deleting the unpacked folder)"
         )
-    if path.stat().st_size == 0:
-        raise DataError(f"{path}: file is empty ({_FIX})")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # "input contained no data" is reported below
@@ -88,7 +86,7 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
                     )
             rows.append([float(t) for t in tokens])
     if not rows:
-        raise DataError(f"{path}: file holds no data lines ({_FIX})")
+        raise DataError(f"{path}: file holds no data lines: it is empty or blank ({_FIX})")
     return np.asarray(rows, dtype=np.float32)
 
 
@@ -103,7 +101,13 @@ def load_sequences(
     the cache where valid, else parsed and cached (if the cache is not writable: not cached)."""
     data_dir = Path(data_dir)
     folder = data_dir / "cache" / spec.name
-    manifest = _read_manifest(folder, spec)
+    manifest = dict(version=CACHE_VERSION, dataset=spec.name, n_columns=spec.n_columns, files={})
+    with suppress(OSError, ValueError, LookupError, TypeError, AttributeError):
+        old = json.loads((folder / MANIFEST).read_text())
+        same = (old["version"], old["n_columns"]) == (CACHE_VERSION, spec.n_columns)
+        files = old["files"].values()
+        if same and all({"size", "mtime_ns", "frames", "npy"} <= e.keys() for e in files):
+            manifest = old
     entries: dict[str, dict] = manifest["files"]
     out: dict[str, np.ndarray] = {}
     writable, changed = True, False
@@ -143,13 +147,3 @@ def load_sequences(
         except OSError as exc:
             log.warning("cannot write the cache manifest in %s (%s)", folder, exc)
     return out
-
-
-def _read_manifest(folder: Path, spec: DatasetSpec) -> dict:
-    with suppress(OSError, ValueError, LookupError, TypeError, AttributeError):  # start afresh
-        manifest = json.loads((folder / MANIFEST).read_text())
-        files = manifest["files"]
-        same = (manifest["version"], manifest["n_columns"]) == (CACHE_VERSION, spec.n_columns)
-        if same and all({"size", "mtime_ns", "frames", "npy"} <= e.keys() for e in files.values()):
-            return manifest
-    return dict(version=CACHE_VERSION, dataset=spec.name, n_columns=spec.n_columns, files={})
