@@ -179,8 +179,7 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
 
 
 def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
-    """Write the dataset members of ``archive`` under ``tmp``; a member that does not match
-    its CRC (or does not decompress) raises a DataError naming it."""
+    """Write the dataset members of ``archive`` under ``tmp``; name a damaged one in a DataError."""
     member = None  # the member last read, named when the archive turns out damaged
     try:
         with zipfile.ZipFile(archive) as zf:

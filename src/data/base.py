@@ -203,8 +203,7 @@ class MotionDataModule(L.LightningDataModule):
         normalizer = self._given_normalizer or Normalizer.from_sequences(
             [raw[e.relpath] for e in train]
         )
-        frames = [torch.from_numpy(raw[e.relpath][::2].copy()) for e in train]  # even frames, §1.3
-        seqs = [normalizer.normalize(f) for f in frames]
+        seqs = [normalizer.normalize(torch.from_numpy(raw[e.relpath][::2].copy())) for e in train]
         self._train_lengths = [len(s) for s in seqs]
         self._train_dataset = WindowDataset(
             seqs, [self.actions.index(e.action) for e in train], self.observed_len, self.future_len
@@ -310,8 +309,7 @@ class MotionDataModule(L.LightningDataModule):
         return self._test_raw[w.sequence][w.start : w.start + self.window_len].copy()
 
     def test_sequence(self, action: str, index: int = 0) -> np.ndarray:
-        """Downsampled raw (unnormalised, F columns) test sequence ``index`` of ``action``:
-        index 0 is subaction 1 on H3.6M and file ``{action}_1`` on CMU."""
+        """Downsampled raw test sequence ``index`` of ``action`` (0: subaction 1, CMU's ``_1``)."""
         self._require_setup()
         entries = self._test_entries.get(action, [])
         if not 0 <= index < len(entries):

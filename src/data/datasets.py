@@ -46,10 +46,9 @@ def _rank() -> int:
 
 
 class TrainWindowSampler(Sampler):
-    """Yields ``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs,
-    seeded from (seed, epoch, DDP rank): an epoch is reproducible and resumable, and ranks draw
-    different windows without a DistributedSampler (``use_distributed_sampler=False``).
-    Lightning calls ``set_epoch`` on ``dataloader.batch_sampler.sampler``, hence ``sampler``."""
+    """``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs, seeded
+    from (seed, epoch, DDP rank): reproducible, resumable, and different on each rank without a
+    DistributedSampler (``use_distributed_sampler=False``)."""
 
     def __init__(
         self,
@@ -75,7 +74,7 @@ class TrainWindowSampler(Sampler):
         self.start_step = 0
 
     @property
-    def sampler(self) -> TrainWindowSampler:
+    def sampler(self) -> TrainWindowSampler:  # Lightning calls batch_sampler.sampler.set_epoch
         return self
 
     def set_epoch(self, epoch: int) -> None:

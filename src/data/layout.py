@@ -1,8 +1,7 @@
-"""Where the files of each dataset live (paths relative to the data directory, as the archive
-members and MISSING.tsv write them), and which ones a configuration needs. H3.6M (protocol
-§1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns. CMU (§1.5):
-``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train files k = 1..5, test
-file k = 1; other folders (CMU ``walking_extra``) are never listed."""
+"""Where the files of each dataset live, relative to the data directory, and which ones a
+configuration needs. H3.6M (protocol §1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``,
+99 columns. CMU (§1.5): ``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train
+files k = 1..5, test file k = 1 (``walking_extra`` is never listed)."""
 
 from __future__ import annotations
 
@@ -66,9 +65,8 @@ SPECS = {"h36m": H36M, "cmu": CMU}
 
 @dataclass(frozen=True)
 class FileEntry:
-    """One expected motion file. ``key`` names the sequence elsewhere (eval windows):
-    ``S5/walking_1`` (H3.6M), ``test/walking/walking_1`` (CMU); ``index`` is the subaction
-    (H3.6M) or the file number k (CMU), 1-based as in the file names."""
+    """One expected motion file; ``key`` names its sequence (``S5/walking_1``, ``test/walking/
+    walking_1``), ``index`` is the subaction (H3.6M) or file number k (CMU), 1-based."""
 
     action: str
     index: int

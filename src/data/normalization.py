@@ -1,9 +1,8 @@
-"""Per-column z-scoring and the used/ignored column split (protocol §2). Statistics come from
-the raw 50 Hz frames of all loaded training files (§2.1): population mean and std per column; a
-column is *used* iff its std >= 1e-4, and the std of ignored columns is reset to 1.
-``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts them back and fills the
-ignored ones with the training mean, as the reference's zero-fill-then-scale does (§2.2). The
-statistics are buffers, so every checkpoint of the owning module holds them."""
+"""Per-column z-scoring and the used/ignored column split (protocol §2), from the raw 50 Hz frames
+of all loaded training files (§2.1): population mean and std per column; a column is *used* iff
+its std >= 1e-4, the std of the others is reset to 1. ``normalize`` keeps the used columns (D of
+F); ``unnormalize`` puts them back, the ignored ones as the training mean, as the reference's
+zero-fill-then-scale does (§2.2). Buffers: every checkpoint of the owning module holds them."""
 
 from __future__ import annotations
 
@@ -35,9 +34,8 @@ class Normalizer(nn.Module):
     def from_sequences(
         cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD
     ) -> Normalizer:
-        """Statistics of the frames of all ``sequences`` (each (N_i, F)), without concatenating
-        them. Two float64 passes (mean, squared deviations): the near-constant columns, which
-        decide the used set, come exact."""
+        """Statistics of the frames of all ``sequences`` (N_i, F), not concatenated; two float64
+        passes (mean, squared deviations) keep the columns that decide the used set exact."""
         seqs = [np.asarray(s) for s in sequences]
         n = sum(len(s) for s in seqs)
         if n == 0:

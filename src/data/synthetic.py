@@ -1,8 +1,7 @@
 """A small synthetic dataset in the exact H3.6M text format (99 comma-separated numbers with 7
 decimals per line, LF endings), for tests and smoke runs. Only the 54 columns used on the real
-data (protocol §2.1) move, the other 45 are exactly 0, so D = 54 as on H3.6M; the motion is
-smooth (per-action frequencies, per-sequence phases, two harmonics, a little noise), so a model
-can learn to continue it."""
+data (§2.1) move, the other 45 are 0 (D = 54 as on H3.6M); the motion is smooth (per-action
+frequencies, per-sequence phases, two harmonics, a little noise): a model can learn it."""
 
 from __future__ import annotations
 
