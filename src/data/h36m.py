@@ -10,16 +10,16 @@ from src.data.errors import DataError
 from src.data.layout import H36M, H36M_TEST_SUBJECT, H36M_TRAIN_SUBJECTS, FileEntry, h36m_files
 from src.data.windows import SRNN_PREFIX, SRNN_SUFFIX, srnn_h36m_starts
 
-SUBJECTS = (1, 5, 6, 7, 8, 9, 11)
+H36M_SUBJECTS = (1, 5, 6, 7, 8, 9, 11)
 
 
 def parse_subjects(subjects: int | Iterable[int], what: str) -> list[int]:
     items = [subjects] if isinstance(subjects, int) else list(subjects)
-    bad = [s for s in items if s not in SUBJECTS]
+    bad = [s for s in items if s not in H36M_SUBJECTS]
     if bad or not items:
         raise DataError(
             f"{what}: unknown H3.6M subject(s) {bad or items!r}; valid subjects are "
-            f"{', '.join(map(str, SUBJECTS))}"
+            f"{', '.join(map(str, H36M_SUBJECTS))}"
         )
     return sorted({int(s) for s in items})
 
