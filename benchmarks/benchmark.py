@@ -284,7 +284,7 @@ def bench_data(batches: int) -> dict:
     data_dir = os.environ.get("MOTION_DATA_DIR")
     if not data_dir or not (Path(data_dir) / "h3.6m").is_dir():
         return {"note": "skipped: set MOTION_DATA_DIR to an unpacked data_dir (h3.6m/)"}
-    from src.data import H36MDataModule
+    from src.data.h36m import H36MDataModule
 
     try:
         dm = H36MDataModule(Path(data_dir), allow_partial=True, batch_size=16)

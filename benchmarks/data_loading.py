@@ -25,10 +25,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
-from src.data import CMUDataModule, H36MDataModule  # noqa: E402
 from src.data.archive import ensure_dataset  # noqa: E402
-from src.data.cache import load_sequences  # noqa: E402
-from src.data.layout import CMU, H36M, H36M_SUBJECTS, cmu_files, h36m_files  # noqa: E402
+from src.data.cmu import CMUDataModule  # noqa: E402
+from src.data.h36m import H36M_SUBJECTS, H36MDataModule  # noqa: E402
+from src.data.layout import CMU, H36M, cmu_files, h36m_files  # noqa: E402
+from src.data.reader import load_sequences  # noqa: E402
 
 
 def machine_info() -> dict:
@@ -102,7 +103,7 @@ def main() -> None:
     archives = Path(args.archives)
 
     info = machine_info()
-    h36m_all = [e.relpath for e in h36m_files(H36M_SUBJECTS, H36M.actions, "all")]
+    h36m_all = [e.relpath for e in h36m_files(H36M_SUBJECTS, H36M.actions)]
     cmu_all = [e.relpath for split in ("train", "test") for e in cmu_files(CMU.actions, split)]
     rows = [
         bench(H36M, H36MDataModule, h36m_all, archives),

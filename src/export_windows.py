@@ -1,5 +1,5 @@
 """Write the protocol's test windows src.eval scores, as raw exp-map frames, to a .npz for a
-model outside this project (the arrays: src/data/export.py; scoring them: src/scoring.py).
+model outside this project (the arrays: src.data.base.window_arrays; scoring them: src/scoring.py).
 
     python -m src.export_windows data=h36m protocol=srnn out=windows.npz
     python -m src.export_windows data=cmu protocol=random data.allow_partial=true out=cmu.npz
@@ -11,7 +11,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from src.cli import hydra_entry
-from src.data.export import window_arrays
+from src.data.base import window_arrays
 from src.data.files import atomic_write
 from src.lit.config import check
 from src.lit.factory import ConfigError, build_test_data

@@ -14,8 +14,7 @@ import torch
 from omegaconf import DictConfig
 from torch import Tensor, nn
 
-from src.data.base import MotionDataModule, window_ids
-from src.data.export import data_sha256
+from src.data.base import MotionDataModule, data_sha256, window_ids
 from src.data.layout import SPECS
 from src.lit.factory import ConfigError, build_test_data
 from src.lit.predictor import MotionPredictor

@@ -26,7 +26,7 @@ def _frames(n: int = 200, seed: int = 0) -> np.ndarray:
 
 def test_statistics_follow_protocol_rule():
     x = _frames()
-    norm = Normalizer.from_frames(x)
+    norm = Normalizer.from_sequences([x])
     assert norm.used.tolist() == [True, False, False, True, False, True]
     assert (norm.num_features, norm.pose_dim) == (6, 3)
     assert norm.dim_used.tolist() == [0, 3, 5] and norm.dim_used.dtype == torch.long
@@ -40,20 +40,20 @@ def test_statistics_follow_protocol_rule():
 
 def test_threshold_is_inclusive():
     x = np.array([[0.0, 1.0], [2e-4, 1.0]])  # column 0: population std exactly 1e-4
-    assert Normalizer.from_frames(x).used.tolist() == [True, False]
-    assert Normalizer.from_frames(x, threshold=1.1e-4).used.tolist() == [False, False]
+    assert Normalizer.from_sequences([x]).used.tolist() == [True, False]
+    assert Normalizer.from_sequences([x], threshold=1.1e-4).used.tolist() == [False, False]
 
 
 def test_from_sequences_equals_concatenation():
     a, b = _frames(50, 1), _frames(80, 2)
-    one = Normalizer.from_frames(np.concatenate([a, b]))
+    one = Normalizer.from_sequences([np.concatenate([a, b])])
     two = Normalizer.from_sequences([a, b])
     for name in ("mean", "std", "used"):
         assert torch.equal(getattr(one, name), getattr(two, name)), name
 
 
 def test_normalize_values_and_leading_dims():
-    norm = Normalizer.from_frames(_frames())
+    norm = Normalizer.from_sequences([_frames()])
     x = torch.randn(2, 3, 4, 6)
     z = norm.normalize(x)
     assert z.shape == (2, 3, 4, 3)
@@ -63,7 +63,7 @@ def test_normalize_values_and_leading_dims():
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_round_trip_used_columns_and_mean_in_ignored(dtype):
-    norm = Normalizer.from_frames(_frames())
+    norm = Normalizer.from_sequences([_frames()])
     x = torch.randn(5, 7, 6, dtype=dtype)
     back = norm.unnormalize(norm.normalize(x))
     assert back.dtype == dtype and back.shape == x.shape
@@ -94,14 +94,14 @@ def test_round_trip_property(used, lead, seed):
 
 
 def test_unnormalize_is_differentiable():
-    norm = Normalizer.from_frames(_frames())
+    norm = Normalizer.from_sequences([_frames()])
     z = torch.randn(4, 3, requires_grad=True)
     norm.unnormalize(z).sum().backward()
     torch.testing.assert_close(z.grad, norm.std[norm.used].expand(4, 3))
 
 
 def test_state_dict_round_trip_through_empty():
-    norm = Normalizer.from_frames(_frames())
+    norm = Normalizer.from_sequences([_frames()])
     empty = Normalizer.empty(6)
     assert empty.mean.shape == empty.std.shape == empty.used.shape == (6,)
     empty.load_state_dict(norm.state_dict())
@@ -110,23 +110,23 @@ def test_state_dict_round_trip_through_empty():
 
 
 def test_follows_module_device_and_dtype_moves():
-    norm = Normalizer.from_frames(_frames()).double()  # float buffers cast, bool kept
+    norm = Normalizer.from_sequences([_frames()]).double()  # float buffers cast, bool kept
     assert norm.used.dtype == torch.bool
     z = norm.normalize(torch.randn(3, 6))  # float32 input on float64 buffers still works
     assert z.dtype == torch.float32
     if torch.cuda.is_available():
-        cuda = Normalizer.from_frames(_frames()).cuda()
+        cuda = Normalizer.from_sequences([_frames()]).cuda()
         x = torch.randn(3, 6, device="cuda")
         assert cuda.unnormalize(cuda.normalize(x)).device.type == "cuda"
 
 
 def test_errors_are_data_errors():
-    norm = Normalizer.from_frames(_frames())
+    norm = Normalizer.from_sequences([_frames()])
     with pytest.raises(DataError, match="last dimension of 6"):
         norm.normalize(torch.zeros(2, 5))
     with pytest.raises(DataError, match="last dimension of 3"):
         norm.unnormalize(torch.zeros(2, 6))
     with pytest.raises(DataError, match="at least one training frame"):
-        Normalizer.from_frames(np.zeros((0, 6)))
+        Normalizer.from_sequences([np.zeros((0, 6))])
     with pytest.raises(DataError, match="NaN/inf"):
-        Normalizer.from_frames(np.array([[0.0], [np.nan]]))
+        Normalizer.from_sequences([np.array([[0.0], [np.nan]])])

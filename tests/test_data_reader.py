@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 
 from src.data import archive as archive_mod
-from src.data import cache as cache_mod
+from src.data import reader as reader_mod
 from src.data.archive import ensure_dataset, unpack_archive
-from src.data.cache import cache_dir, load_sequences
 from src.data.errors import DataError
 from src.data.layout import CMU, H36M, h36m_files, missing_files
-from src.data.reader import read_motion_file
+from src.data.reader import load_sequences, read_motion_file
 from src.data.synthetic import write_synthetic_h36m
 
 
@@ -129,7 +128,7 @@ def test_nan_and_inf_are_rejected_with_line(tmp_path, bad):
 
 
 def test_layout_lists_expected_files_and_reports_missing(tmp_path):
-    entries = h36m_files([5], ["walking", "eating"], "test")
+    entries = h36m_files([5], ["walking", "eating"])
     assert [e.relpath for e in entries] == [
         "h3.6m/dataset/S5/walking_1.txt",
         "h3.6m/dataset/S5/walking_2.txt",
@@ -151,19 +150,19 @@ def test_layout_lists_expected_files_and_reports_missing(tmp_path):
 def counted_parses(monkeypatch):
     """Record which files the cache actually parses."""
     calls: list[str] = []
-    real = cache_mod.read_motion_file
+    real = reader_mod.read_motion_file
 
     def spy(path, n_columns):
         calls.append(Path(path).name)
         return real(path, n_columns)
 
-    monkeypatch.setattr(cache_mod, "read_motion_file", spy)
+    monkeypatch.setattr(reader_mod, "read_motion_file", spy)
     return calls
 
 
 def _synthetic(tmp_path):
     write_synthetic_h36m(tmp_path, subjects=(1,), actions=("walking", "eating"), raw_frames=20)
-    return [e.relpath for e in h36m_files([1], ["walking", "eating"], "train")]
+    return [e.relpath for e in h36m_files([1], ["walking", "eating"])]
 
 
 def test_cache_hit_after_first_parse(tmp_path, counted_parses):
@@ -175,7 +174,7 @@ def test_cache_hit_after_first_parse(tmp_path, counted_parses):
     for rel in rels:
         np.testing.assert_array_equal(first[rel], second[rel])
         assert second[rel].shape == (20, 99)
-    manifest = json.loads((cache_dir(tmp_path, H36M) / "manifest.json").read_text())
+    manifest = json.loads((tmp_path / "cache/h36m/manifest.json").read_text())
     st = (tmp_path / rels[0]).stat()
     assert manifest["files"][rels[0]]["size"] == st.st_size
     assert manifest["files"][rels[0]]["mtime_ns"] == st.st_mtime_ns
@@ -209,20 +208,20 @@ def test_added_and_removed_files_update_their_entries(tmp_path, counted_parses):
     (tmp_path / rels[3]).unlink()
     load_sequences(tmp_path, H36M, rels[:3])
     assert len(counted_parses) == 4
-    manifest = json.loads((cache_dir(tmp_path, H36M) / "manifest.json").read_text())
+    manifest = json.loads((tmp_path / "cache/h36m/manifest.json").read_text())
     assert sorted(manifest["files"]) == sorted(rels[:3])
-    assert len(list(cache_dir(tmp_path, H36M).glob("*.npy"))) == 3
+    assert len(list((tmp_path / "cache/h36m").glob("*.npy"))) == 3
 
 
 def test_corrupt_cache_file_is_reparsed(tmp_path, counted_parses):
     rels = _synthetic(tmp_path)
     first = load_sequences(tmp_path, H36M, rels)
-    npy = next(cache_dir(tmp_path, H36M).glob("*walking_1.npy"))
+    npy = next((tmp_path / "cache/h36m").glob("*walking_1.npy"))
     npy.write_bytes(npy.read_bytes()[:100])  # truncated, as by a crash without atomic writes
     out = load_sequences(tmp_path, H36M, rels)
     assert counted_parses[4:] == ["walking_1.txt"]
     np.testing.assert_array_equal(out[rels[0]], first[rels[0]])
-    (cache_dir(tmp_path, H36M) / "manifest.json").write_text("{not json")
+    (tmp_path / "cache/h36m/manifest.json").write_text("{not json")
     load_sequences(tmp_path, H36M, rels)
     assert len(counted_parses) == 9  # everything again, no crash
 
@@ -230,7 +229,7 @@ def test_corrupt_cache_file_is_reparsed(tmp_path, counted_parses):
 def test_cache_leaves_no_temp_files(tmp_path):
     rels = _synthetic(tmp_path)
     load_sequences(tmp_path, H36M, rels)
-    assert not [p for p in cache_dir(tmp_path, H36M).iterdir() if p.name.startswith(".")]
+    assert not [p for p in (tmp_path / "cache/h36m").iterdir() if p.name.startswith(".")]
 
 
 # ---- archive --------------------------------------------------------------------------------

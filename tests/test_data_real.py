@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import torch
 
-from src.data import CMUDataModule, H36MDataModule
-from src.data.cache import load_sequences
+from src.data.cmu import CMUDataModule
 from src.data.errors import DataError
+from src.data.h36m import H36MDataModule
 from src.data.layout import H36M, H36M_ACTIONS, h36m_files
-from src.data.reader import read_motion_file
+from src.data.reader import load_sequences, read_motion_file
 from src.data.synthetic import H36M_USED_COLUMNS
 from src.data.windows import srnn_h36m_starts
 
@@ -133,7 +133,7 @@ def test_h36m_real_batches(h36m):
 
 
 def test_cached_load_of_all_h36m_is_fast(h36m, data_dir):
-    rels = [e.relpath for e in h36m_files([1, 5, 6, 7, 8, 9, 11], H36M_ACTIONS, "all")]
+    rels = [e.relpath for e in h36m_files([1, 5, 6, 7, 8, 9, 11], H36M_ACTIONS)]
     rels = [r for r in rels if (data_dir / r).is_file()]
     t0 = time.perf_counter()
     out = load_sequences(data_dir, H36M, rels)

@@ -95,8 +95,6 @@ def test_strided_starts_enumerate_every_window():
         (1, 10),
     ]
     assert strided_starts([100], window_len=75, stride=5, low=16) == [(0, 16), (0, 21)]
-    with pytest.raises(DataError, match="stride"):
-        strided_starts([100], window_len=75, stride=0)
 
 
 # ---- TrainWindowSampler (protocol §1.4) ------------------------------------------------------

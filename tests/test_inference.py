@@ -167,7 +167,7 @@ def test_one_hot_model_requires_the_action():
     from src.inference import InferenceInputError, MotionForecaster
     from src.models.gru_s2s import GRUSeq2Seq
 
-    normalizer = Normalizer.from_frames(np.random.default_rng(0).normal(size=(100, 99)))
+    normalizer = Normalizer.from_sequences([np.random.default_rng(0).normal(size=(100, 99))])
     net = GRUSeq2Seq(pose_dim=normalizer.pose_dim, num_actions=2, hidden=8, one_hot=True)
     forecaster = MotionForecaster(net, normalizer, ["walking", "eating"], 50, "cpu")
     frames = np.zeros((50, 99), dtype=np.float32)
@@ -209,7 +209,7 @@ def test_a_compiled_forecaster_predicts_ten_shapes(ckpt_path, frames, dynamo_onl
 def test_forecasters_of_several_structures_compile_in_one_process(dynamo_only):
     """Networks of one class share torch's limit of graphs: three forecasters of 4 shapes each
     are 12 graphs of GRUSeq2Seq.forward. Past the limit torch predicts eagerly."""
-    normalizer = Normalizer.from_frames(np.random.default_rng(0).normal(size=(100, F)))
+    normalizer = Normalizer.from_sequences([np.random.default_rng(0).normal(size=(100, F))])
     frames = np.zeros((4, 50, F), dtype=np.float32)
     for hidden in (4, 5, 6):
         net = GRUSeq2Seq(pose_dim=normalizer.pose_dim, num_actions=1, hidden=hidden, one_hot=False)

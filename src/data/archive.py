@@ -16,6 +16,7 @@ import zlib
 from pathlib import Path, PurePosixPath
 
 from src.data.errors import DataError
+from src.data.files import atomic_write
 from src.data.layout import SPECS, DatasetSpec
 
 log = logging.getLogger(__name__)
@@ -25,16 +26,14 @@ DATA_DIR_ENV = "MOTION_DATA_DIR"
 
 
 def resolve_data_dir(data_dir: str | os.PathLike | None) -> Path:
-    """``data_dir`` if given, else ``$MOTION_DATA_DIR``, else ``./data``."""
     return Path(data_dir or os.environ.get(DATA_DIR_ENV) or "data").expanduser()
 
 
 def ensure_dataset(
     dataset: str | DatasetSpec, data_dir: str | os.PathLike | None, archive=None, archive_dir=None
 ) -> Path:
-    """Make sure the dataset is unpacked under ``data_dir`` and return ``data_dir``; raise a
-    DataError saying what to download and where to put it if nothing is found. ``archive``: a
-    zip's path, its folder or URL; ``archive_dir``: a folder that may hold the zip."""
+    """Unpack the dataset under ``data_dir`` unless it is there; return ``data_dir``. ``archive``:
+    a zip's path, its folder or URL; ``archive_dir``: a folder that may hold the zip."""
     spec = SPECS[dataset] if isinstance(dataset, str) else dataset
     data_dir = resolve_data_dir(data_dir)
     if not (data_dir / spec.marker).is_dir():
@@ -89,29 +88,27 @@ def _how_to_get(spec: DatasetSpec) -> str:
 
 
 def download(url: str, dest: Path) -> Path:
-    """Download ``url`` to ``dest`` (via a ``.part`` file); reuse ``dest`` if already there."""
+    """Download ``url`` to ``dest`` (atomically); reuse ``dest`` if already there."""
     if dest.is_file() and zipfile.is_zipfile(dest):
         return dest
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    part = dest.with_name(dest.name + f".part-{os.getpid()}")
     log.warning("downloading %s to %s (data.archive is a URL)", url, dest)
-    try:
-        with urllib.request.urlopen(url, timeout=60) as response, open(part, "wb") as out:
-            shutil.copyfileobj(response, out, 1 << 20)
-    except OSError as exc:  # URLError and HTTPError are OSErrors
-        part.unlink(missing_ok=True)
-        raise DataError(
-            f"could not download {url}: {exc} (fix: download it by hand and pass "
-            f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
-        ) from None
-    if not zipfile.is_zipfile(part):
-        part.unlink(missing_ok=True)
-        raise DataError(
-            f"{url} did not return a zip archive (an error page?) (fix: download it by hand and "
-            f"pass data.archive=<local path>)"
-        )
-    os.replace(part, dest)
-    return dest
+
+    def fetch(part: Path) -> None:
+        try:
+            with urllib.request.urlopen(url, timeout=60) as response, open(part, "wb") as out:
+                shutil.copyfileobj(response, out, 1 << 20)
+        except OSError as exc:  # URLError and HTTPError are OSErrors
+            raise DataError(
+                f"could not download {url}: {exc} (fix: download it by hand and pass "
+                f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
+            ) from None
+        if not zipfile.is_zipfile(part):
+            raise DataError(
+                f"{url} did not return a zip archive (an error page?) (fix: download it by hand "
+                "and pass data.archive=<local path>)"
+            )
+
+    return atomic_write(dest, fetch)
 
 
 def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, dataset) -> None:
@@ -182,9 +179,8 @@ def unpack_archive(archive: str | os.PathLike, data_dir: str | os.PathLike, data
 
 
 def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
-    """Write the dataset members of ``archive`` under ``tmp``; a member that does not match
-    its CRC (or does not decompress) raises a DataError naming it."""
-    member = None  # the member being read, named when the archive turns out damaged
+    """Write the dataset members of ``archive`` under ``tmp``; name a damaged one in a DataError."""
+    member = None  # the member last read, named when the archive turns out damaged
     try:
         with zipfile.ZipFile(archive) as zf:
             for info in zf.infolist():
@@ -204,7 +200,6 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
                 member = info.filename
                 with zf.open(info) as src, open(dest, "wb") as out:
                     shutil.copyfileobj(src, out, 1 << 20)
-                member = None
     except (zipfile.BadZipFile, zlib.error, EOFError) as err:
         where = f"member {member!r}" if member else "its directory"
         raise DataError(
@@ -213,21 +208,3 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
             f"`unzip -t {archive.name}` (or compare its sha256 with the MANIFEST your copy came "
             "with)."
         ) from None
-
-
-def check_missing(spec: DatasetSpec, data_dir: Path, missing: list[str], allow_partial: bool):
-    """Full protocol: raise listing every missing file. Partial mode: the datamodule's setup
-    warns, saying what it reads and does without them."""
-    if not missing or allow_partial:
-        return
-    listing = "\n  ".join(missing)
-    raise DataError(
-        f"{len(missing)} expected {spec.name} file(s) are missing under {data_dir}:\n"
-        f"  {listing}\n"
-        f"The full protocol needs all of them. Fix: get the complete archive "
-        f"({_how_to_get(spec)}), delete {data_dir / spec.root} and run again to unpack it; "
-        f"or, for a copy that stays partial, export MOTION_ALLOW_PARTIAL=true (or add "
-        f"paths.allow_partial=true) to use the files that exist and report the actions "
-        f"that cannot be evaluated as absent.",
-        missing,
-    )

@@ -1,12 +1,11 @@
-"""The LightningDataModule shared by H3.6M and CMU: text files -> (cache) raw 50 Hz arrays ->
-Normalizer of the raw training frames (protocol §2.1) -> even frames (§1.3) -> normalised used
-dimensions -> training windows (§1.4, §1.5) and a fixed list of evaluation windows (§3, or the
-``random`` / ``strided`` protocols). A partial copy of the data is refused, listing every missing
-file, or with ``allow_partial`` used as it is, each action that cannot be evaluated reported in
-``absent_actions`` with the reason: absent, never zero."""
+"""The LightningDataModule of H3.6M and CMU: text files -> (cached) raw 50 Hz arrays -> Normalizer
+of the raw training frames (§2.1) -> even frames (§1.3) -> normalised used dimensions -> training
+windows (§1.4, §1.5), evaluation windows (§3, or ``random`` / ``strided``) and their export. A
+partial copy is refused; with ``allow_partial`` the actions it cannot evaluate are reported."""
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 from collections import Counter
@@ -18,12 +17,12 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
-from src.data.archive import check_missing, ensure_dataset, resolve_data_dir
-from src.data.cache import load_sequences
+from src.data.archive import ensure_dataset, resolve_data_dir
 from src.data.datasets import TrainWindowSampler, WindowDataset
 from src.data.errors import DataError
 from src.data.layout import DatasetSpec, FileEntry, missing_files, parse_actions
 from src.data.normalization import Normalizer
+from src.data.reader import load_sequences
 from src.data.windows import TRAIN_START_LOW, random_starts, strided_starts
 
 log = logging.getLogger(__name__)
@@ -156,25 +155,18 @@ class MotionDataModule(L.LightningDataModule):
         train, test = self.expected_files()
         if self._eval_only:
             train = []
-        self.missing_files = missing_files(self.data_dir, train + test)
-        check_missing(self.spec, self.data_dir, self.missing_files, self.allow_partial)
+        self.missing_files = missing = missing_files(self.data_dir, train + test)
+        if missing and not self.allow_partial:
+            spec = self.spec
+            raise DataError(
+                f"{len(missing)} expected {spec.name} file(s) are missing under {self.data_dir}:"
+                "\n  " + "\n  ".join(missing) + "\nThe full protocol needs all of them. Fix: get "
+                f"the complete archive (download {spec.source} ({spec.url})), delete "
+                f"{self.data_dir / spec.root} and run again; or, for a copy that stays partial, "
+                "export MOTION_ALLOW_PARTIAL=true (or paths.allow_partial=true) to use the files "
+                "that exist and report the actions that cannot be evaluated as absent."
+            )
         return train, test
-
-    def _warn_missing(self, train: list[FileEntry]) -> None:
-        """data.allow_partial=true: what is missing, counted by kind, and what is done."""
-        n_train = sum(e.relpath in self.missing_files for e in train)
-        if self._eval_only:
-            kind, doing = "test ", "evaluating with"
-            counted = "training files are not needed: the checkpoint holds the normalisation"
-        else:
-            kind, counted = "", f"{n_train} training, {len(self.missing_files) - n_train} test"
-            doing = "training on" if self._stage == "fit" else "normalising and evaluating with"
-        log.warning(
-            f"data.allow_partial=true: {len(self.missing_files)} {self.spec.name} {kind}file(s) "
-            f"are missing under {self.data_dir} ({counted}); {doing} the files that exist, the "
-            "actions without their test files reported as absent:\n  "
-            + "\n  ".join(self.missing_files)
-        )
 
     def setup(self, stage: str | None = None) -> None:
         """Load, normalise and window the data (once; later calls are no-ops)."""
@@ -183,8 +175,21 @@ class MotionDataModule(L.LightningDataModule):
         self._stage = stage
         train, test = self._locate()
         missing = set(self.missing_files)
-        if missing:  # only with allow_partial: _locate raised otherwise
-            self._warn_missing(train)
+        # allow_partial (else _locate raised): what is missing, by kind, and what is done.
+        if missing:
+            n_train = sum(e.relpath in missing for e in train)
+            if self._eval_only:
+                kind, doing = "test ", "evaluating with"
+                counted = "training files are not needed: the checkpoint holds the normalisation"
+            else:
+                kind, counted = "", f"{n_train} training, {len(missing) - n_train} test"
+                doing = "training on" if stage == "fit" else "normalising and evaluating with"
+            log.warning(
+                f"data.allow_partial=true: {len(missing)} {self.spec.name} {kind}file(s) are "
+                f"missing under {self.data_dir} ({counted}); {doing} the files that exist, the "
+                "actions without their test files reported as absent:\n  "
+                + "\n  ".join(self.missing_files)
+            )
         train = [e for e in train if e.relpath not in missing]
         present_test = [e for e in test if e.relpath not in missing]
         raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
@@ -198,15 +203,12 @@ class MotionDataModule(L.LightningDataModule):
         normalizer = self._given_normalizer or Normalizer.from_sequences(
             [raw[e.relpath] for e in train]
         )
-        label = {a: i for i, a in enumerate(self.actions)}
-        frames = [torch.from_numpy(raw[e.relpath][::2].copy()) for e in train]  # even frames, §1.3
-        seqs = [normalizer.normalize(f) for f in frames]
+        seqs = [normalizer.normalize(torch.from_numpy(raw[e.relpath][::2].copy())) for e in train]
         self._train_lengths = [len(s) for s in seqs]
         self._train_dataset = WindowDataset(
-            seqs, [label[e.action] for e in train], self.observed_len, self.future_len
+            seqs, [self.actions.index(e.action) for e in train], self.observed_len, self.future_len
         )
-        trained = {e.action for e in train}
-        self.untrained_actions = [a for a in self.actions if a not in trained]
+        self.untrained_actions = [a for a in self.actions if all(e.action != a for e in train)]
         if self.untrained_actions and not self._eval_only:
             log.warning(
                 "no training file for action(s) %s: they are evaluated but never trained on",
@@ -242,7 +244,7 @@ class MotionDataModule(L.LightningDataModule):
                 "test files listed above)"
             )
         seqs = {k: normalizer.normalize(torch.from_numpy(f)) for k, f in self._test_raw.items()}
-        labels = {e.key: label[e.action] for e in present_test}
+        labels = {e.key: self.actions.index(e.action) for e in present_test}
         pairs = [(w.sequence, w.start) for w in self.eval_windows]
         self._eval_dataset = WindowDataset(seqs, labels, self.observed_len, self.future_len, pairs)
         self.normalizer = normalizer
@@ -267,30 +269,27 @@ class MotionDataModule(L.LightningDataModule):
         return windows
 
     def _loader(self, dataset: WindowDataset, **kwargs) -> DataLoader:
-        trainer = getattr(self, "trainer", None)
         return DataLoader(
             dataset,
             num_workers=self.num_workers,
             persistent_workers=self.num_workers > 0,
-            # A generator of the loader's own: creating an iterator draws a base seed for the
-            # workers, which would otherwise come from the global generator that the dropout
-            # masks use. A resumed run creates its iterator at another point than the run it
-            # continues (mid-epoch), so that draw would shift every later mask.
+            # Its own generator for the workers' base seed: drawn from the global one, which the
+            # dropout masks use, it would shift every later mask of a run resumed mid-epoch.
             generator=torch.Generator().manual_seed(self.seed),
             # Pinned batches let the Trainer's copy to the GPU run without blocking the host.
-            pin_memory=trainer is not None and trainer.strategy.root_device.type == "cuda",
+            pin_memory=self.trainer is not None
+            and self.trainer.strategy.root_device.type == "cuda",
             **kwargs,
         )
 
     def train_dataloader(self) -> DataLoader:
-        self._require_setup()
         sampler = TrainWindowSampler(
             self._train_lengths,
             self.window_len,
             TRAIN_START_LOW[self.dataset_name],
             self.batch_size,
             self.steps_per_epoch,
-            _positive("draws_per_step", self.draws_per_step),
+            self.draws_per_step,
             self.seed,
         )
         # A resume from a checkpoint written between validations continues its epoch.
@@ -299,7 +298,6 @@ class MotionDataModule(L.LightningDataModule):
 
     def val_dataloader(self) -> DataLoader:
         """The test windows: the protocol has no validation split (protocol §8)."""
-        self._require_setup()
         return self._loader(self._eval_dataset, batch_size=self.eval_batch_size, shuffle=False)
 
     test_dataloader = val_dataloader
@@ -311,17 +309,53 @@ class MotionDataModule(L.LightningDataModule):
         return self._test_raw[w.sequence][w.start : w.start + self.window_len].copy()
 
     def test_sequence(self, action: str, index: int = 0) -> np.ndarray:
-        """Downsampled raw (unnormalised, F columns) test sequence ``index`` of ``action``:
-        index 0 is subaction 1 on H3.6M and file ``{action}_1`` on CMU."""
+        """Downsampled raw test sequence ``index`` of ``action`` (0: subaction 1, CMU's ``_1``)."""
         self._require_setup()
-        if action not in self._test_entries:
-            raise DataError(f"action {action!r} is not configured; configured: {self.actions}")
-        entries = self._test_entries[action]
+        entries = self._test_entries.get(action, [])
         if not 0 <= index < len(entries):
             raise DataError(
-                f"{action} has {len(entries)} test sequence(s); index {index} is out of range"
+                f"{action} has no test sequence {index}: {len(entries)} are loaded (configured "
+                f"actions: {', '.join(self.actions)})"
             )
         entry = entries[index]
         if entry.key not in self._test_raw:
             raise DataError(f"{self.data_dir / entry.relpath}: test file is missing")
         return self._test_raw[entry.key].copy()
+
+
+def windows_sha256(ids: Iterable[str], frames: Iterable[np.ndarray]) -> str:
+    """SHA-256 over each window's id and its observed + future frames (float32, C order), in
+    the protocol's order: equal for equal windows, whoever computes it from whatever copy."""
+    digest = hashlib.sha256()
+    for name, window in zip(ids, frames, strict=True):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(window, dtype=np.float32).tobytes())
+    return digest.hexdigest()
+
+
+def data_sha256(dm: MotionDataModule) -> str:
+    """`windows_sha256` of a set-up datamodule's evaluation windows."""
+    ids = window_ids(dm.eval_windows)
+    return windows_sha256(ids, (dm.raw_window(i) for i in range(len(ids))))
+
+
+def window_arrays(dm: MotionDataModule, dataset: str) -> dict[str, np.ndarray]:
+    """A set-up datamodule's test windows as plain arrays for outside models (`src.export_windows`
+    writes them, `src.scoring` checks predictions against them), in the protocol's order:
+    - ``observed`` (N, observed_len, F), ``future`` (N, future_len, F): raw exp-map frames,
+      float32, downsampled as everywhere (§1.3); F = 99 on H3.6M, 117 on CMU;
+    - ``action``, ``window_id`` (`window_ids`): (N,) strings; 0-d metadata: ``dataset`` (the data
+      config's name: ``synthetic`` is not H3.6M), ``protocol``, ``fps`` (25, on CMU too, as the
+      tables' horizons assume, protocol §1.5), ``data_sha256`` (`windows_sha256`)."""
+    frames = np.stack([dm.raw_window(i) for i in range(len(dm.eval_windows))])
+    ids = window_ids(dm.eval_windows)
+    return {
+        "observed": frames[:, : dm.observed_len],
+        "future": frames[:, dm.observed_len :],
+        "action": np.array([w.action for w in dm.eval_windows]),
+        "window_id": np.array(ids),
+        "dataset": np.array(dataset),
+        "protocol": np.array(dm.eval_protocol),
+        "fps": np.array(1000.0 / dm.frame_ms),
+        "data_sha256": np.array(windows_sha256(ids, frames)),
+    }

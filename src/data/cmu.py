@@ -8,12 +8,10 @@ from src.data.windows import cmu_test_starts
 
 
 class CMUDataModule(MotionDataModule):
-    """CMU: train files ``{action}_1..5``, test file ``{action}_1`` (protocol §1.5).
-
-    ``eval_protocol="srnn"`` gives the reference's 8 windows per action from the single test
-    file (§3.2); their starts depend on ``future_len``. No angle wrapping, no start offset of 16,
-    VALID convolution padding (§6.7).
-    """
+    """CMU: train files ``{action}_1..5``, test file ``{action}_1`` (protocol §1.5);
+    ``eval_protocol="srnn"``: the reference's 8 windows per action from the test file (§3.2),
+    whose starts depend on ``future_len``. No angle wrapping, no start offset of 16, VALID
+    convolution padding (§6.7)."""
 
     spec, dataset_name = CMU, "cmu"
     conv_padding = "valid"

@@ -1,7 +1,6 @@
-"""The torch dataset over downsampled, normalised sequences, and the training batch sampler.
-Training follows the reference sampling (protocol §1.4): for every window, a sequence drawn
-uniformly over sequences with replacement (not weighted by length), then a start uniform in the
-dataset's range. An "epoch" is ``steps_per_epoch`` batches, not a pass over a set of windows."""
+"""The torch dataset over downsampled, normalised sequences, and the training batch sampler of
+the reference (protocol §1.4): per window a sequence uniform with replacement (not weighted by
+length), then a start uniform in the dataset's range. An "epoch" is ``steps_per_epoch`` batches."""
 
 from __future__ import annotations
 
@@ -16,10 +15,9 @@ from src.data.errors import DataError
 
 
 class WindowDataset(Dataset):
-    """Windows addressed by (sequence, start) pairs as TrainWindowSampler draws them, or by
-    position i in the evaluation list ``windows`` of such pairs (the sequence an index or key of
-    ``sequences`` and ``actions``). Items: ``observed (observed_len, D)``, ``future (future_len,
-    D)``, ``action`` and, by position, ``window`` = i (the index into ``dm.eval_windows``)."""
+    """Windows addressed by (sequence, start) pairs (TrainWindowSampler's) or by position i in
+    ``windows``, a list of such pairs. Items: ``observed (observed_len, D)``, ``future
+    (future_len, D)``, ``action`` and, by position, ``window`` = i (into ``dm.eval_windows``)."""
 
     def __init__(self, sequences, actions, observed_len: int, future_len: int, windows=()):
         self.sequences, self.actions = sequences, actions
@@ -48,11 +46,9 @@ def _rank() -> int:
 
 
 class TrainWindowSampler(Sampler):
-    """Yields ``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs.
-    The generator of epoch e on DDP rank r is seeded from (seed, e, r): an epoch is reproducible
-    and resumable, and ranks draw different windows without a DistributedSampler (run the
-    Trainer with ``use_distributed_sampler=False``). Lightning calls ``set_epoch`` on
-    ``dataloader.batch_sampler.sampler``, hence the ``sampler`` property returning ``self``."""
+    """``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs, seeded
+    from (seed, epoch, DDP rank): reproducible, resumable, and different on each rank without a
+    DistributedSampler (``use_distributed_sampler=False``)."""
 
     def __init__(
         self,
@@ -64,7 +60,6 @@ class TrainWindowSampler(Sampler):
         draws_per_step: int = 1,
         seed: int = 0,
     ):
-        super().__init__()
         self.highs = np.asarray(lengths, dtype=np.int64) - window_len
         self.eligible = np.flatnonzero(self.highs > low)
         if self.eligible.size == 0:
@@ -79,7 +74,7 @@ class TrainWindowSampler(Sampler):
         self.start_step = 0
 
     @property
-    def sampler(self) -> TrainWindowSampler:
+    def sampler(self) -> TrainWindowSampler:  # Lightning calls batch_sampler.sampler.set_epoch
         return self
 
     def set_epoch(self, epoch: int) -> None:

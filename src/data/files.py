@@ -1,10 +1,12 @@
 """The two ways this project writes where something else may be: a file written whole or not at
-all, and a new name no other process can take. Every writer in src/ goes through these."""
+all, and a new folder no other process can take. Every writer in src/ goes through these."""
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections.abc import Callable
+from contextlib import suppress
 from pathlib import Path
 
 
@@ -26,24 +28,9 @@ def claim_folder(base: str | os.PathLike) -> Path:
     """Create (with its parents) and return `base`, or `base-1`, `base-2`, ... when taken: mkdir
     succeeds in one process only, so runs started in the same second get folders of their own."""
     base = Path(base)
-    candidate, n = base, 0
-    while True:
-        try:
+    base.parent.mkdir(parents=True, exist_ok=True)
+    for n in itertools.count():
+        candidate = base.with_name(f"{base.name}-{n}") if n else base
+        with suppress(FileExistsError):
             candidate.mkdir()
             return candidate
-        except FileExistsError:
-            n += 1
-            candidate = base.with_name(f"{base.name}-{n}")
-        except FileNotFoundError:
-            candidate.parent.mkdir(parents=True, exist_ok=True)
-
-
-def free_path(path: str | os.PathLike) -> Path:
-    """`path`, or `<stem>-1<suffix>`, `-2`, ... where that exists: a default output file name
-    that never writes over an earlier output."""
-    path = Path(path)
-    candidate, n = path, 0
-    while candidate.exists():
-        n += 1
-        candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
-    return candidate

@@ -7,24 +7,27 @@ from collections.abc import Iterable
 
 from src.data.base import MotionDataModule
 from src.data.errors import DataError
-from src.data.layout import (
-    H36M,
-    H36M_TEST_SUBJECT,
-    H36M_TRAIN_SUBJECTS,
-    FileEntry,
-    h36m_files,
-    parse_subjects,
-)
+from src.data.layout import H36M, H36M_TEST_SUBJECT, H36M_TRAIN_SUBJECTS, FileEntry, h36m_files
 from src.data.windows import SRNN_PREFIX, SRNN_SUFFIX, srnn_h36m_starts
+
+H36M_SUBJECTS = (1, 5, 6, 7, 8, 9, 11)
+
+
+def parse_subjects(subjects: int | Iterable[int], what: str) -> list[int]:
+    items = [subjects] if isinstance(subjects, int) else list(subjects)
+    bad = [s for s in items if s not in H36M_SUBJECTS]
+    if bad or not items:
+        raise DataError(
+            f"{what}: unknown H3.6M subject(s) {bad or items!r}; valid subjects are "
+            f"{', '.join(map(str, H36M_SUBJECTS))}"
+        )
+    return sorted({int(s) for s in items})
 
 
 class H36MDataModule(MotionDataModule):
     """H3.6M: train on subjects 1, 6, 7, 8, 9, 11, evaluate on subject 5 (protocol §1.2).
-
     ``eval_protocol="srnn"`` gives the reference's 8 windows per action (§3.1), alternating
-    subactions 1 and 2, whose starts do not depend on ``future_len``. Every other argument is
-    MotionDataModule's.
-    """
+    subactions 1 and 2, whose starts do not depend on ``future_len``."""
 
     spec, dataset_name = H36M, "h36m"
     conv_padding = "same"
@@ -53,10 +56,8 @@ class H36MDataModule(MotionDataModule):
             )
 
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
-        return (
-            h36m_files(self.train_subjects, self.actions, "train"),
-            h36m_files([self.test_subject], self.actions, "test"),
-        )
+        train = h36m_files(self.train_subjects, self.actions)
+        return train, h36m_files([self.test_subject], self.actions)
 
     def protocol_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
         # lengths = [subaction 1, subaction 2]; the index into them is subaction - 1.

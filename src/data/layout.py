@@ -1,8 +1,7 @@
-"""Where the files of each dataset live (paths relative to the data directory, as the archive
-members and MISSING.tsv write them), and which ones a configuration needs. H3.6M (protocol
-§1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``, 99 columns. CMU (§1.5):
-``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train files k = 1..5, test
-file k = 1; other folders (CMU ``walking_extra``) are never listed."""
+"""Where the files of each dataset live, relative to the data directory, and which ones a
+configuration needs. H3.6M (protocol §1.1-1.2): ``h3.6m/dataset/S{subject}/{action}_{1,2}.txt``,
+99 columns. CMU (§1.5): ``cmu_mocap/{train,test}/{action}/{action}_{k}.txt``, 117 columns, train
+files k = 1..5, test file k = 1 (``walking_extra`` is never listed)."""
 
 from __future__ import annotations
 
@@ -17,7 +16,6 @@ H36M_ACTIONS: tuple[str, ...] = tuple(
     "walking eating smoking discussion directions greeting phoning posing purchases sitting "
     "sittingdown takingphoto waiting walkingdog walkingtogether".split()
 )
-H36M_SUBJECTS: tuple[int, ...] = (1, 5, 6, 7, 8, 9, 11)
 H36M_TRAIN_SUBJECTS: tuple[int, ...] = (1, 6, 7, 8, 9, 11)
 H36M_TEST_SUBJECT = 5
 # Protocol §1.5, [L] DataLoader_cmu.py order.
@@ -67,11 +65,9 @@ SPECS = {"h36m": H36M, "cmu": CMU}
 
 @dataclass(frozen=True)
 class FileEntry:
-    """One expected motion file. ``key`` names the sequence everywhere else (cache, eval
-    windows): ``S5/walking_1`` (H3.6M), ``test/walking/walking_1`` (CMU); ``index`` is the
-    subaction (H3.6M) or the file number k (CMU), 1-based as in the file names."""
+    """One expected motion file; ``key`` names its sequence (``S5/walking_1``, ``test/walking/
+    walking_1``), ``index`` is the subaction (H3.6M) or file number k (CMU), 1-based."""
 
-    split: str  # "train" or "test"
     action: str
     index: int
     subject: int | None
@@ -96,22 +92,10 @@ def parse_actions(actions: str | Iterable[str], spec: DatasetSpec) -> list[str]:
     return [a for a in spec.actions if a in names]
 
 
-def parse_subjects(subjects: int | Iterable[int], what: str) -> list[int]:
-    """Validate H3.6M subject numbers (1, 5, 6, 7, 8, 9, 11)."""
-    items = [subjects] if isinstance(subjects, int) else list(subjects)
-    bad = [s for s in items if s not in H36M_SUBJECTS]
-    if bad or not items:
-        raise DataError(
-            f"{what}: unknown H3.6M subject(s) {bad or items!r}; valid subjects are "
-            f"{', '.join(map(str, H36M_SUBJECTS))}"
-        )
-    return sorted({int(s) for s in items})
-
-
-def h36m_files(subjects: Sequence[int], actions: Sequence[str], split: str) -> list[FileEntry]:
+def h36m_files(subjects: Sequence[int], actions: Sequence[str]) -> list[FileEntry]:
     """The H3.6M files of ``subjects`` x ``actions`` x subactions 1, 2 (protocol §1.1)."""
     return [
-        FileEntry(split, a, sub, s, f"{H36M.marker}/S{s}/{a}_{sub}.txt", f"S{s}/{a}_{sub}")
+        FileEntry(a, sub, s, f"{H36M.marker}/S{s}/{a}_{sub}.txt", f"S{s}/{a}_{sub}")
         for s in subjects
         for a in actions
         for sub in (1, 2)
@@ -122,7 +106,7 @@ def cmu_files(actions: Sequence[str], split: str) -> list[FileEntry]:
     """The CMU files of ``actions``: train k = 1..5, test k = 1 (protocol §1.5)."""
     count = 5 if split == "train" else 1
     return [
-        FileEntry(split, a, k, None, f"{CMU.root}/{split}/{a}/{a}_{k}.txt", f"{split}/{a}/{a}_{k}")
+        FileEntry(a, k, None, f"{CMU.root}/{split}/{a}/{a}_{k}.txt", f"{split}/{a}/{a}_{k}")
         for a in actions
         for k in range(1, count + 1)
     ]

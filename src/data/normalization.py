@@ -1,9 +1,8 @@
-"""Per-column z-scoring and the used/ignored column split (protocol §2). Statistics come from
-the raw 50 Hz frames of all loaded training files (§2.1): population mean and std per column; a
-column is *used* iff its std >= 1e-4, and the std of ignored columns is reset to 1.
-``normalize`` keeps only the used columns (D of F); ``unnormalize`` puts them back and fills the
-ignored ones with the training mean, as the reference's zero-fill-then-scale does (§2.2). The
-statistics are buffers, so every checkpoint of the owning module holds them."""
+"""Per-column z-scoring and the used/ignored column split (protocol §2), from the raw 50 Hz frames
+of all loaded training files (§2.1): population mean and std per column; a column is *used* iff
+its std >= 1e-4, the std of the others is reset to 1. ``normalize`` keeps the used columns (D of
+F); ``unnormalize`` puts them back, the ignored ones as the training mean, as the reference's
+zero-fill-then-scale does (§2.2). Buffers: every checkpoint of the owning module holds them."""
 
 from __future__ import annotations
 
@@ -32,26 +31,19 @@ class Normalizer(nn.Module):
         self.register_buffer("used", used.to(torch.bool).clone())
 
     @classmethod
-    def from_frames(cls, frames: np.ndarray, threshold: float = STD_THRESHOLD) -> Normalizer:
-        """Statistics of ``frames`` (N, F), e.g. all raw training frames stacked."""
-        return cls.from_sequences([frames], threshold)
-
-    @classmethod
     def from_sequences(
         cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD
     ) -> Normalizer:
-        """``from_frames(np.concatenate(sequences))`` without the copy. Two float64 passes (mean,
-        squared deviations): the near-constant columns, which decide the used set, come exact."""
+        """Statistics of the frames of all ``sequences`` (N_i, F), not concatenated; two float64
+        passes (mean, squared deviations) keep the columns that decide the used set exact."""
         seqs = [np.asarray(s) for s in sequences]
         n = sum(len(s) for s in seqs)
         if n == 0:
             raise DataError("Normalizer statistics need at least one training frame, got none")
         mean = sum(s.sum(axis=0, dtype=np.float64) for s in seqs) / n
         std = np.sqrt(sum(np.square(s.astype(np.float64) - mean).sum(axis=0) for s in seqs) / n)
-        if not (np.isfinite(mean).all() and np.isfinite(std).all()):
-            raise DataError(
-                "Normalizer statistics are not finite: the training frames hold NaN/inf"
-            )
+        if not np.isfinite(std).all():  # a non-finite mean makes its std non-finite too
+            raise DataError("Normalizer statistics not finite: the training frames hold NaN/inf")
         used = std >= threshold
         std = np.where(used, std, 1.0)
         return cls(torch.from_numpy(mean), torch.from_numpy(std), torch.from_numpy(used))

@@ -1,8 +1,7 @@
 """A small synthetic dataset in the exact H3.6M text format (99 comma-separated numbers with 7
 decimals per line, LF endings), for tests and smoke runs. Only the 54 columns used on the real
-data (protocol §2.1) move, the other 45 are exactly 0, so D = 54 as on H3.6M; the motion is
-smooth (per-action frequencies, per-sequence phases, two harmonics, a little noise), so a model
-can learn to continue it."""
+data (§2.1) move, the other 45 are 0 (D = 54 as on H3.6M); the motion is smooth (per-action
+frequencies, per-sequence phases, two harmonics, a little noise): a model can learn it."""
 
 from __future__ import annotations
 
@@ -51,30 +50,27 @@ def write_synthetic_h36m(
     raw_frames: int = 400,
     seed: int = 0,
 ) -> list[Path]:
-    """Write the synthetic files under ``root`` (the data_dir); return their paths. A file that
-    already holds exactly these frames is left alone (its parsed cache stays valid); one
-    written with other settings (``raw_frames``, ``seed``) is replaced."""
+    """Write the synthetic files under ``root`` (the data_dir); return their paths. One that
+    holds other frames (other ``raw_frames``, ``seed``) is replaced, the others left alone."""
     if raw_frames < 2:
         raise DataError(f"raw_frames must be >= 2, got {raw_frames}")
     root = Path(root)
     paths = []
-    for entry in h36m_files(list(subjects), list(actions), "any"):
+    for entry in h36m_files(list(subjects), list(actions)):
         frames = synthetic_motion(entry.subject, entry.action, entry.index, raw_frames, seed)
         text = io.StringIO()
         np.savetxt(text, frames, fmt="%.7f", delimiter=",")
         data = text.getvalue().encode()
         path = root / entry.relpath
         paths.append(path)
-        if path.is_file() and path.read_bytes() == data:
-            continue
-        atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
+        if not (path.is_file() and path.read_bytes() == data):
+            atomic_write(path, lambda tmp, data=data: tmp.write_bytes(data))
     return paths
 
 
 class SyntheticDataModule(H36MDataModule):
-    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic`` (written when absent):
-    train subject 1, test subject 5, actions walking, eating, smoking by default. Every other
-    argument is H36MDataModule's (the archive ones are never needed)."""
+    """H3.6M pipeline on the synthetic files in ``<data_dir>/synthetic``; by default train
+    subject 1, test subject 5, actions walking, eating, smoking (the archive is never needed)."""
 
     def __init__(
         self,

@@ -1,7 +1,6 @@
-"""Start frames of training and evaluation windows, in downsampled frames (protocol §1.3), as
-pure functions of sequence lengths. Training starts, as in the reference code, lie in
-[16, n - (50 + T_out)) on H3.6M (§1.4) and [0, n - (50 + T_out)) on CMU (§1.5); the ``random``
-and ``strided`` evaluation protocols use the same ranges."""
+"""Start frames of training and evaluation windows (downsampled frames, §1.3) from sequence
+lengths. Training starts, as in the reference code, lie in [16, n - (50 + T_out)) on H3.6M (§1.4)
+and [0, n - (50 + T_out)) on CMU (§1.5); the ``random`` and ``strided`` protocols use these too."""
 
 from __future__ import annotations
 
@@ -73,6 +72,4 @@ def strided_starts(
     lengths: Sequence[int], window_len: int, stride: int, low: int = 0
 ) -> list[tuple[int, int]]:
     """Every (sequence index, start) with start in range(low, length - window_len, stride)."""
-    if stride < 1:
-        raise DataError(f"the eval stride must be >= 1, got {stride}")
     return [(i, s) for i, t in enumerate(lengths) for s in range(low, t - window_len, stride)]

@@ -75,7 +75,7 @@ def training_files(group: Group, actions: list[str]) -> dict[str, tuple[int, int
 
     data = group.runs[0]["config"].get("data", {})
     if data.get("name") == "h36m":
-        entries = h36m_files(data.get("train_subjects", H36M_TRAIN_SUBJECTS), actions, "train")
+        entries = h36m_files(data.get("train_subjects", H36M_TRAIN_SUBJECTS), actions)
     else:
         entries = cmu_files(actions, "train") if data.get("name") == "cmu" else []
     keys = ("missing_files", "train_missing_files")
