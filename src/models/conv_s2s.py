@@ -108,9 +108,10 @@ class ConvSeq2Seq(nn.Module):
                 # does not exist; skipping it changes no output and needs only T GT frames.
                 break
             nxt = pred
-            if mix:  # eq. (10) with x_{t+k} = future[:, k]; the reference (§6.4) takes the next
-                # step's target future[:, k+1], leaking (1-eta) of it through the residual.
-                nxt = eta * pred + (1.0 - eta) * future[:, k + self.reference_eta_offset]
+            if mix:
+                # eq. (10) with x_{t+k} = future[:, k]; the reference (§6.4) takes the next
+                # step's target, future[:, k+1], leaking (1-eta) of it through the residual.
+                nxt = eta * pred + (1.0 - eta) * future[:, k + int(self.reference_eta_offset)]
             window = torch.cat([window[:, 1:], nxt.unsqueeze(1)], dim=1)  # eq. (5)
         return torch.stack(preds, dim=1) if preds else observed.new_zeros(B, 0, self.pose_dim)
 
