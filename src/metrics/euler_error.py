@@ -75,15 +75,11 @@ def selected_dims(
             )
         reference = gt_euler
     else:
-        if observed_euler is None:
-            raise MetricInputError("dim_rule='window' needs gt_observed_full (B, T_obs, F)")
-        if observed_euler.dim() != 3 or (
-            observed_euler.shape[0] != gt_euler.shape[0]
-            or observed_euler.shape[2] != gt_euler.shape[2]
-        ):
+        shape = None if observed_euler is None else tuple(observed_euler.shape)
+        if shape is None or len(shape) != 3 or shape[::2] != tuple(gt_euler.shape[::2]):
             raise MetricInputError(
-                f"gt_observed_full must be (B, T_obs, F) = ({gt_euler.shape[0]}, T_obs, "
-                f"{gt_euler.shape[2]}), got {tuple(observed_euler.shape)}"
+                f"dim_rule='window' needs gt_observed_full (B, T_obs, F) = ({gt_euler.shape[0]}, "
+                f"T_obs, {gt_euler.shape[2]}), got {shape}"
             )
         reference = torch.cat((observed_euler.to(gt_euler), gt_euler), 1)
     return reference.std(dim=1, correction=0) > STD_THRESHOLD

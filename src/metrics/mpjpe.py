@@ -18,8 +18,6 @@ def mpjpe_per_frame(
     pred_full: Tensor, gt_full: Tensor, skeleton: Skeleton, joints: Tensor
 ) -> Tensor:
     """Per-window, per-frame MPJPE (B, T) in float64: mean over `joints` of the 3D distance."""
-    if not isinstance(pred_full, Tensor) or not isinstance(gt_full, Tensor):
-        raise MetricInputError("pred_full and gt_full must be torch.Tensors (B, T, F)")
     if pred_full.dim() != 3 or pred_full.shape != gt_full.shape:
         raise MetricInputError(
             f"pred_full and gt_full must both be (B, T, F); got {tuple(pred_full.shape)} and "
@@ -40,12 +38,11 @@ class MPJPE(PerActionMean):
     ):
         super().__init__(num_actions, num_frames, **kwargs)
         joints = torch.as_tensor(joints, dtype=torch.long)
-        if joints.dim() != 1 or joints.numel() == 0:
-            raise MetricInputError("joints must be a non-empty 1-D tensor of joint indices")
-        if joints.min() < 0 or joints.max() >= skeleton.num_joints:
+        J = skeleton.num_joints
+        if joints.dim() != 1 or not len(joints) or joints.min() < 0 or joints.max() >= J:
             raise MetricInputError(
-                f"joint indices must lie in [0, {skeleton.num_joints}) for skeleton "
-                f"{skeleton.name!r}, got {joints.tolist()}"
+                f"joints must be a non-empty 1-D tensor of joint indices in [0, {J}) for "
+                f"skeleton {skeleton.name!r}, got {joints.tolist()}"
             )
         self.skeleton, self.joints = skeleton, joints
 

@@ -36,12 +36,7 @@ def _skew(k: Tensor) -> Tensor:
     """Cross-product matrix [k]x of (..., 3) vectors, shape (..., 3, 3)."""
     zero = torch.zeros_like(k[..., 0])
     kx, ky, kz = k.unbind(-1)
-    rows = (
-        torch.stack((zero, -kz, ky), -1),
-        torch.stack((kz, zero, -kx), -1),
-        torch.stack((-ky, kx, zero), -1),
-    )
-    return torch.stack(rows, -2)
+    return torch.stack((zero, -kz, ky, kz, zero, -kx, -ky, kx, zero), -1).unflatten(-1, (3, 3))
 
 
 def expmap_to_rotmat(r: Tensor) -> Tensor:
@@ -98,12 +93,12 @@ def _axis_rotation(angle: Tensor, axis: int) -> Tensor:
     c, s = torch.cos(angle), torch.sin(angle)
     one, zero = torch.ones_like(angle), torch.zeros_like(angle)
     if axis == 0:
-        rows = ((one, zero, zero), (zero, c, -s), (zero, s, c))
+        rows = (one, zero, zero, zero, c, -s, zero, s, c)
     elif axis == 1:
-        rows = ((c, zero, s), (zero, one, zero), (-s, zero, c))
+        rows = (c, zero, s, zero, one, zero, -s, zero, c)
     else:
-        rows = ((c, -s, zero), (s, c, zero), (zero, zero, one))
-    return torch.stack([torch.stack(row, -1) for row in rows], -2)
+        rows = (c, -s, zero, s, c, zero, zero, zero, one)
+    return torch.stack(rows, -1).unflatten(-1, (3, 3))
 
 
 def euler_to_rotmat(e: Tensor) -> Tensor:
@@ -129,29 +124,16 @@ def rotmat_to_expmap(R: Tensor) -> Tensor:
     r00, r01, r02 = R[..., 0, 0], R[..., 0, 1], R[..., 0, 2]
     r10, r11, r12 = R[..., 1, 0], R[..., 1, 1], R[..., 1, 2]
     r20, r21, r22 = R[..., 2, 0], R[..., 2, 1], R[..., 2, 2]
-    # 4 * (w^2, x^2, y^2, z^2); they sum to 4, so the largest is >= 1.
-    diag = torch.stack(
-        (
-            1.0 + r00 + r11 + r22,
-            1.0 + r00 - r11 - r22,
-            1.0 - r00 + r11 - r22,
-            1.0 - r00 - r11 + r22,
-        ),
-        -1,
-    )
+    # d = 4 * (w^2, x^2, y^2, z^2); they sum to 4, so the largest is >= 1.
+    p, m = 1.0 + r00, 1.0 - r00
+    d = (p + r11 + r22, p - r11 - r22, m + r11 - r22, m - r11 + r22)
     # 4 * q_i * q_j for the off-diagonal pairs (w,x) (w,y) (w,z) (x,y) (x,z) (y,z).
     wx, wy, wz = r21 - r12, r02 - r20, r10 - r01
     xy, xz, yz = r01 + r10, r02 + r20, r12 + r21
     # Candidate quaternions (w, x, y, z), each scaled by 4 * (its pivot component).
-    cands = torch.stack(
-        (
-            torch.stack((diag[..., 0], wx, wy, wz), -1),
-            torch.stack((wx, diag[..., 1], xy, xz), -1),
-            torch.stack((wy, xy, diag[..., 2], yz), -1),
-            torch.stack((wz, xz, yz, diag[..., 3]), -1),
-        ),
-        -2,
-    )
+    rows = ((d[0], wx, wy, wz), (wx, d[1], xy, xz), (wy, xy, d[2], yz), (wz, xz, yz, d[3]))
+    cands = torch.stack([torch.stack(row, -1) for row in rows], -2)
+    diag = torch.stack(d, -1)
     pivot = diag.argmax(-1, keepdim=True)
     q = torch.gather(cands, -2, pivot.unsqueeze(-1).expand(*pivot.shape[:-1], 1, 4)).squeeze(-2)
     q = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True)

@@ -39,22 +39,13 @@ def tf_conv_geometry(size: int, kernel: int, stride: int, padding: str) -> tuple
 
 
 def conv_shapes(
-    in_len: int,
-    pose_dim: int,
-    nf: int = 16,
-    kernel: tuple[int, int] = (2, 7),
-    padding: str = "same",
-    stride: int = 2,
+    in_len: int, pose_dim: int, nf=16, kernel=(2, 7), padding="same", stride=2
 ) -> list[tuple[int, int, int]]:
-    """(channels, height, width) after each of the three convolutions.
-
-    Raises ValueError naming `in_len` (time) or `pose_dim` (width) when an input is too
-    small for the kernels, which can only happen with VALID padding.
-    """
-    h, w = in_len, pose_dim
-    if h < 1 or w < 1:
+    """(channels, height, width) after each of the three convolutions; a ValueError names
+    `in_len` (time) or `pose_dim` (width) when one is too small for the kernels (VALID only)."""
+    if in_len < 1 or pose_dim < 1:
         raise ValueError(f"CEM input must be non-empty, got in_len={in_len}, pose_dim={pose_dim}")
-    shapes = []
+    h, w, shapes = in_len, pose_dim, []
     for i, ch in enumerate((4 * nf, 8 * nf, 8 * nf)):
         h_out = tf_conv_geometry(h, kernel[0], stride, padding)[0]
         w_out = tf_conv_geometry(w, kernel[1], stride, padding)[0]
@@ -85,14 +76,9 @@ def tf_init_(module: nn.Module) -> None:
 class ConvEncoder(nn.Module):
     """CEM: 3 x [TF-padded Conv2d(no bias) -> leaky ReLU 0.2 -> dropout] -> flatten -> Linear.
 
-    Args:
-        in_len: number of frames T of the input window (image height).
-        pose_dim: pose dimensions D (image width).
-        d_out: size of the output code (512 in the paper).
-        nf: base filter count; channels are (4nf, 8nf, 8nf) = (64, 128, 128) for nf=16.
-        kernel: (time, pose) kernel size, the paper's rectangular 2x7 kernel.
-        padding: "same" (H3.6M) or "valid" (CMU), with TensorFlow semantics.
-        dropout: drop probabilities after conv1..3; the reference's keep 0.8/0.8/0.5.
+    in_len T frames (image height) x pose_dim D (width) -> code of d_out (512); channels
+    (4nf, 8nf, 8nf); kernel (time, pose), the paper's 2x7; padding "same" (H3.6M) or "valid"
+    (CMU), TF semantics; dropout: drop probabilities after conv1..3 (reference keeps 0.8/0.8/0.5).
     """
 
     def __init__(
@@ -107,8 +93,6 @@ class ConvEncoder(nn.Module):
         stride: int = 2,
     ):
         super().__init__()
-        if padding not in PADDINGS:
-            raise ValueError(f"padding={padding!r} is not supported; use one of {PADDINGS}")
         if len(dropout) != 3:
             raise ValueError(f"dropout needs one probability per conv layer (3), got {dropout}")
         self.in_len, self.pose_dim = in_len, pose_dim
@@ -138,8 +122,7 @@ class ConvEncoder(nn.Module):
             raise ValueError(
                 f"ConvEncoder expects (B, {self.in_len}, {self.pose_dim}), got {tuple(x.shape)}"
             )
-        # Padding stays a layer of its own (ZeroPad2d) even where TF's is symmetric (conv2 on
-        # H3.6M) and the convolution could pad by itself, 6% faster: in torch 2.13 oneDNN then
-        # gets the input gradient wrong at 128+ channels (tests/test_models_conv.py,
-        # ..._native_convolutions).
+        # Padding stays a ZeroPad2d layer even where TF's is symmetric (conv2 on H3.6M): with
+        # the convolution padding by itself (6% faster), oneDNN in torch 2.13 gets the input
+        # gradient wrong at 128+ channels (tests/test_models_conv.py, ..._native_convolutions).
         return self.fc(torch.flatten(self.convs(x.unsqueeze(1)), 1))

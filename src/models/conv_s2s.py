@@ -26,22 +26,14 @@ from src.models.dropout import Dropout
 
 
 class ConvSeq2Seq(nn.Module):
-    """Li et al.'s generator. All tensors live in the normalised used-dimension space.
+    """Li et al.'s generator, in the normalised used-dimension space.
 
-    Args:
-        pose_dim: D, pose dimensions (54 H3.6M, 70 CMU).
-        num_actions: number of action classes; unused (see module docstring), kept for the
-            common constructor contract.
-        C: short-term window size (eq. 2), 20 in the reference.
-        nf: CEM base filter count (channels 4nf, 8nf, 8nf).
-        d_z: size of each code z_l, z_s (512).
-        kernel, padding, dropout: CEM settings (protocol §6.2; padding "valid" on CMU §6.7).
-        decoder_dropout: drop probability between the decoder's two FC layers (keep 0.5).
-        long_term: False is the Table 5 ablation without the long-term encoder.
-        observed_len: observed frames (50); the long-term encoder reads the first
-            observed_len - 1 of them.
-        reference_eta_offset: reproduce the reference's off-by-one in eq. (10) (§6.4).
-        d_dec: hidden width of the spatial decoder (512, paper §3.2).
+    pose_dim D (54 H3.6M, 70 CMU); num_actions unused (module docstring); C the short-term
+    window (eq. 2, 20); nf, d_z (512), kernel, padding, dropout: the CEMs' settings (protocol
+    §6.2, "valid" on CMU §6.7); decoder_dropout between the decoder's FC layers (keep 0.5);
+    long_term=False the Table 5 ablation; observed_len 50 frames, the long-term encoder reads
+    all but the last; reference_eta_offset the reference's off-by-one in eq. (10) (§6.4);
+    d_dec the spatial decoder's hidden width (512, paper §3.2).
     """
 
     def __init__(
@@ -88,70 +80,40 @@ class ConvSeq2Seq(nn.Module):
         )
         tf_init_(self.decoder)
 
-    def forward(
-        self,
-        observed: Tensor,
-        future_len: int,
-        action: Tensor | None = None,
-        future: Tensor | None = None,
-        eta: float | Tensor = 1.0,
-    ) -> Tensor:
-        """Predict (B, future_len, D) from observed (B, observed_len, D).
-
-        `future` (B, >= future_len, D) is the ground truth, used only for the eq. (10) mixing
-        when eta < 1; with future=None decoding is fully autoregressive. `action` is ignored.
-        A 0-dim tensor eta (the compiled training step) always mixes: exact at eta = 1.
-        """
+    def forward(self, observed: Tensor, future_len: int, action=None, future=None, eta=1.0):
+        """(B, observed_len, D) -> (B, future_len, D). `future` (B, >= future_len, D), the
+        ground truth, is mixed in by eq. (10) when eta < 1 (or is a tensor, see `mixes`)."""
         B = check_forward_inputs(
             observed, self.observed_len, self.pose_dim, future_len, future, eta
         )
         mix = mixes(future, eta)
-        z_l = self.long_encoder(observed[:, : self.observed_len - 1]) if self.long_term else None
-        decoder = self._decoder(z_l, B)
+        # eq. (3)'s first layer is linear in [z_l, z_s]: W [z_l; z_s] + b = (W_l z_l + b) +
+        # W_s z_s, and z_l is the same at every step, so W_l z_l + b is computed once here.
+        first, act, drop, out = self.decoder
+        h_l, w_s = first.bias.expand(B, -1), first.weight  # no z_l: the Table 5 ablation
+        if self.long_term:
+            z_l = self.long_encoder(observed[:, : self.observed_len - 1])  # eq. (1)
+            d = z_l.shape[1]
+            h_l, w_s = F.linear(z_l, first.weight[:, :d], first.bias), first.weight[:, d:]
         window = observed[:, -self.C :]  # frames 50-C .. 49
         preds = []
         for k in range(future_len):
             z_s = self.short_encoder(window)  # eq. (4)
-            pred = decoder(z_s) + window[:, -1]  # eq. (6), residual on the last frame
+            h = act(h_l + F.linear(z_s, w_s))
+            pred = out(drop(h) if drop.training else h) + window[:, -1]  # eq. (6), residual
             preds.append(pred)
             if k == future_len - 1:
                 # The window after the last prediction is never read, so nothing is appended.
                 # For the offset variant this is the step whose "next frame" future[:, T]
                 # does not exist; skipping it changes no output and needs only T GT frames.
                 break
-            nxt = self._next_frame(pred, future, k, eta) if mix else pred
+            nxt = pred
+            if mix:
+                # eq. (10) with x_{t+k} = future[:, k]; the reference (§6.4) takes the next
+                # step's target, future[:, k+1], leaking (1-eta) of it through the residual.
+                nxt = eta * pred + (1.0 - eta) * future[:, k + int(self.reference_eta_offset)]
             window = torch.cat([window[:, 1:], nxt.unsqueeze(1)], dim=1)  # eq. (5)
         return torch.stack(preds, dim=1) if preds else observed.new_zeros(B, 0, self.pose_dim)
-
-    def _decoder(self, z_l: Tensor | None, batch: int):
-        """The spatial decoder of eq. (3) as a function of z_s, for one sequence.
-
-        Its first layer is linear in [z_l, z_s]: W [z_l; z_s] + b = (W_l z_l + b) + W_s z_s,
-        and z_l is the same at every future step, so W_l z_l + b is computed once here instead
-        of at each of the 25 steps (the same numbers up to float rounding).
-        """
-        first, act, drop, out = self.decoder
-        d_l = 0 if z_l is None else z_l.shape[1]
-        h_l = (
-            first.bias.expand(batch, -1)
-            if z_l is None
-            else F.linear(z_l, first.weight[:, :d_l], first.bias)
-        )
-        w_s = first.weight[:, d_l:]
-
-        def decoder(z_s: Tensor) -> Tensor:
-            h = act(h_l + F.linear(z_s, w_s))
-            return out(drop(h) if drop.training else h)
-
-        return decoder
-
-    def _next_frame(self, pred: Tensor, future: Tensor, k: int, eta: float | Tensor) -> Tensor:
-        """eq. (10): mix x̂_{t+k} with its own ground truth x_{t+k} = future[:, k].
-
-        The reference (protocol §6.4) uses w[51+it] = future[:, k+1], the target of the
-        next step, which leaks (1-eta) of that target through the residual."""
-        gt = future[:, k + 1] if self.reference_eta_offset else future[:, k]
-        return eta * pred + (1.0 - eta) * gt
 
 
 def mixes(future: Tensor | None, eta: float | Tensor) -> bool:
@@ -161,31 +123,18 @@ def mixes(future: Tensor | None, eta: float | Tensor) -> bool:
     return future is not None and (isinstance(eta, Tensor) or eta != 1.0)
 
 
-def check_forward_inputs(
-    observed: Tensor,
-    observed_len: int | None,
-    pose_dim: int,
-    future_len: int,
-    future: Tensor | None,
-    eta: float | Tensor,
-) -> int:
-    """Validate the common predictor forward contract; returns the batch size B.
-
+def check_forward_inputs(observed, observed_len, pose_dim, future_len, future, eta) -> int:
+    """Check the common forward contract (models/__init__.py); returns the batch size B.
     observed_len=None accepts any number of observed frames (the baselines). A tensor eta is
-    not read (see `mixes`): its caller checks the value.
-    """
-    T = observed.shape[1] if observed.dim() == 3 and observed_len is None else observed_len
-    if observed.dim() != 3 or tuple(observed.shape[1:]) != (T, pose_dim):
-        want = "T" if observed_len is None else observed_len
-        raise ValueError(f"observed must be (B, {want}, {pose_dim}), got {tuple(observed.shape)}")
+    not read (see `mixes`): its caller checks the value."""
+    shape, want = tuple(observed.shape), "T" if observed_len is None else observed_len
+    if len(shape) != 3 or shape[2] != pose_dim or observed_len not in (None, shape[1]):
+        raise ValueError(f"observed must be (B, {want}, {pose_dim}), got {shape}")
     if future_len < 0:
         raise ValueError(f"future_len must be >= 0, got {future_len}")
-    B = observed.shape[0]
+    B = shape[0]
     if future is not None and (
-        future.dim() != 3
-        or future.shape[0] != B
-        or future.shape[2] != pose_dim
-        or future.shape[1] < future_len
+        (future.dim(), *future.shape[::2]) != (3, B, pose_dim) or future.shape[1] < future_len
     ):
         raise ValueError(
             f"future must be (B={B}, T>={future_len}, {pose_dim}), got {tuple(future.shape)}"

@@ -25,9 +25,8 @@ def one_hot_action(action: Tensor | None, num_actions: int, batch: int) -> Tenso
             f"action must be a LongTensor of shape ({batch},), "
             f"got {action.dtype} {tuple(action.shape)}"
         )
-    # The range check reads the labels on the host: free on the CPU, a sync per call on a GPU,
-    # where the labels come from the datamodule's own action list. Skipped while tracing or
-    # compiling (export).
+    # Range checked on the CPU only (a GPU would sync; its labels come from the datamodule's own
+    # action list) and not while tracing or compiling (export).
     checkable = action.device.type == "cpu"
     if batch and checkable and not (torch.jit.is_tracing() or torch.compiler.is_compiling()):
         lo, hi = int(action.min()), int(action.max())
@@ -38,14 +37,9 @@ def one_hot_action(action: Tensor | None, num_actions: int, batch: int) -> Tenso
 
 class Discriminator(nn.Module):
     """D(X_{1:t+T}, action) -> logit (B,); sigmoid(logit) = probability the sequence is real.
-
-    Args:
-        pose_dim: D (54 H3.6M, 70 CMU).
-        num_actions: size of the action one-hot (15 H3.6M, 8 CMU).
-        seq_len: frames of the judged sequence (75).
-        nf, d_z, kernel, padding, dropout: CEM settings (protocol §6.2, §6.7).
-        d_fc: hidden FC width (256 = 8·nf in the reference).
-    """
+    pose_dim D (54 H3.6M, 70 CMU), num_actions (15, 8), seq_len judged frames (75); nf, d_z,
+    kernel, padding, dropout: CEM settings (protocol §6.2, §6.7); d_fc hidden FC width (256 =
+    8·nf in the reference)."""
 
     def __init__(
         self,

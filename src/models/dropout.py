@@ -1,15 +1,12 @@
 """Dropout drawn the way TensorFlow draws it: one uniform number per element against a threshold.
 
-Why not nn.Dropout on the CPU: torch's bernoulli_ draws one element at a time (about 9 ns per
-element on this project's CPU), while rand_like is vectorised (about 3 ns). The CEMs drop
-about 36 million activations per conv_s2s + adversarial training iteration: nn.Dropout was 14%
-of that step, and the step is about 1.1x faster with this one (`python benchmarks/dropout.py`
-times both, interleaved). The masks have the same distribution (keep with
-probability 1 - p, to float32 resolution) and the reference's own formulation (its
-tcl.dropout, protocol §6.2, is tf.nn.dropout: keep where floor(keep_prob + u) = 1, u uniform),
-and they come from the same generator, so seeding and the random state kept in checkpoints
-work as before; a given seed draws other masks than nn.Dropout would. On other devices
-nn.Dropout's fused kernel is faster and is used.
+Why not nn.Dropout on the CPU: its bernoulli_ draws one element at a time (about 9 ns per
+element here), rand is vectorised (about 3 ns); the CEMs drop about 36 million activations per
+conv_s2s + adversarial iteration, and the step is about 1.1x faster (`benchmarks/dropout.py`).
+The masks have the same distribution (keep with probability 1 - p, to float32 resolution), the
+reference's own (tf.nn.dropout, protocol §6.2: keep where floor(keep_prob + u) = 1), and come
+from the same generator, so seeding and checkpointed random states work as before (a seed draws
+other masks than nn.Dropout would). On other devices nn.Dropout's fused kernel is faster.
 """
 
 from __future__ import annotations

@@ -31,17 +31,10 @@ from src.models.discriminator import one_hot_action
 
 
 class GRUSeq2Seq(nn.Module):
-    """Martinez et al.'s seq2seq; tensors in the normalised used-dimension space.
-
-    Args:
-        pose_dim: D (54 H3.6M, 70 CMU).
-        num_actions: number of actions (one-hot size).
-        hidden: GRU units (1024).
-        tied: share the GRU between encoder and decoder.
-        residual: output = input + linear(h) (`--residual_velocities`).
-        one_hot: append the action one-hot to every input ("sup." vs "unsup.").
-        observed_len: observed frames (50): 49 for the encoder, the last seeds the decoder.
-    """
+    """Martinez et al.'s seq2seq, in the normalised used-dimension space: pose_dim D (54 H3.6M,
+    70 CMU), num_actions (one-hot size), hidden GRU units (1024), tied, residual
+    (`--residual_velocities`), one_hot ("sup." vs "unsup."), observed_len frames (50: 49 for
+    the encoder, the last seeds the decoder)."""
 
     def __init__(
         self,
@@ -54,10 +47,6 @@ class GRUSeq2Seq(nn.Module):
         observed_len: int = 50,
     ):
         super().__init__()
-        if observed_len < 1:
-            raise ValueError(
-                f"observed_len={observed_len} must be >= 1 (frame 49 seeds the decoder)"
-            )
         self.pose_dim, self.num_actions, self.hidden = pose_dim, num_actions, hidden
         self.tied, self.residual, self.one_hot = tied, residual, one_hot
         self.observed_len = observed_len
@@ -70,14 +59,7 @@ class GRUSeq2Seq(nn.Module):
         nn.init.uniform_(self.proj.weight, -0.04, 0.04)  # [M] rnn_cell_extensions.py:85-121
         nn.init.uniform_(self.proj.bias, -0.04, 0.04)
 
-    def forward(
-        self,
-        observed: Tensor,
-        future_len: int,
-        action: Tensor | None = None,
-        future: Tensor | None = None,
-        eta: float | Tensor = 1.0,
-    ) -> Tensor:
+    def forward(self, observed: Tensor, future_len: int, action=None, future=None, eta=1.0):
         """Predict (B, future_len, D) pose frames; see `decode` for the arguments."""
         return self.decode(observed, future_len, action, future, eta)[..., : self.pose_dim]
 
@@ -89,11 +71,9 @@ class GRUSeq2Seq(nn.Module):
         future: Tensor | None = None,
         eta: float | Tensor = 1.0,
     ) -> Tensor:
-        """All decoder outputs (B, future_len, input_size), one-hot columns included.
-
-        observed (B, observed_len, D); action (B,) long, required when one_hot; future
-        (B, >= future_len, D) ground truth, used only when eta < 1 (never with future=None).
-        """
+        """All decoder outputs (B, future_len, input_size), one-hot columns included, of observed
+        (B, observed_len, D); action (B,) long, required when one_hot; future (B, >= future_len,
+        D) ground truth, mixed in when eta < 1 (see `mixes`)."""
         B = check_forward_inputs(
             observed, self.observed_len, self.pose_dim, future_len, future, eta
         )
@@ -120,6 +100,4 @@ class GRUSeq2Seq(nn.Module):
             h = decoder(inp, h)
             out = self.proj(h)
             outs.append(out + inp if self.residual else out)
-        if not outs:
-            return observed.new_zeros(B, 0, self.input_size)
-        return torch.stack(outs, dim=1)
+        return torch.stack(outs, dim=1) if outs else observed.new_zeros(B, 0, self.input_size)

@@ -36,14 +36,7 @@ class ResidualMLP(nn.Module):
         nn.init.zeros_(self.mlp[-1].weight)
         nn.init.zeros_(self.mlp[-1].bias)
 
-    def forward(
-        self,
-        observed: Tensor,
-        future_len: int,
-        action: Tensor | None = None,
-        future: Tensor | None = None,
-        eta: float | Tensor = 1.0,
-    ) -> Tensor:
+    def forward(self, observed: Tensor, future_len: int, action=None, future=None, eta=1.0):
         """(B, T_obs >= C, D) -> (B, future_len, D); `action` is ignored, `future` (B, >=
         future_len, D) is mixed in with weight 1 - eta during training."""
         B = check_forward_inputs(observed, None, self.pose_dim, future_len, future, eta)
