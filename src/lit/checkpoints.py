@@ -1,12 +1,5 @@
-"""Checkpoint files: written during training, read and checked. Two per run:
-
-- `last.ckpt`, the resume point (weights, optimisers, LR schedulers, loops, random state),
-  rewritten atomically at every validation, every `checkpoint_every` iterations and on
-  SIGINT/SIGTERM. (Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it only with a new
-  best: a run whose error rose kept an old one.)
-- `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40), the best validation of the
-  whole run, resumes included: lean (weights, normaliser, config, actions), for evaluation.
-"""
+"""Checkpoint files: `last.ckpt`, the resume point (LastCheckpoint), and the lean
+`best-iterNNNNNN.ckpt` for evaluation (BestCheckpoint); reading and checking them."""
 
 from __future__ import annotations
 
@@ -47,11 +40,12 @@ class TrainingInterrupted(RuntimeError):
 
 
 class LastCheckpoint(Checkpoint):
-    """Writes `last.ckpt` at every validation, every `every` iterations (0: off) and, on
-    SIGINT/SIGTERM, after the iteration in progress, then stops with TrainingInterrupted; a
-    second signal aborts at once. A `Checkpoint` subclass, which the Trainer runs after every
-    other callback: the random state it saves is the one the next iteration starts from,
-    whatever the others drew (the frame-strip logger)."""
+    """Writes `last.ckpt` (weights, optimisers, LR schedulers, loops, random state) atomically
+    at every validation, every `every` iterations (0: off) and, on SIGINT/SIGTERM, after the
+    iteration in progress, then stops with TrainingInterrupted; a second signal aborts at once.
+    Not ModelCheckpoint(save_last=True): Lightning 2.6 rewrote it only with a new best. A
+    `Checkpoint` subclass, which the Trainer runs after every other callback: the random state
+    it saves is the one the next iteration starts from, whatever the others drew."""
 
     def __init__(self, dirpath: str | Path, every: int = 0):
         self.path = Path(dirpath) / LAST
@@ -218,8 +212,7 @@ def _unreadable(path: Path, err: Exception) -> str:
 
 
 def require_resumable(ckpt: dict, path: str | Path) -> None:
-    missing = [k for k in ("optimizer_states", "loops") if k not in ckpt]
-    if missing:
+    if not {"optimizer_states", "loops"} <= ckpt.keys():
         raise CheckpointError(
             f"{path} holds weights only (a lean best checkpoint), not the optimiser and loop "
             f"state a resume needs; resume from the run's {LAST} instead."

@@ -172,12 +172,6 @@ def constructor_schema(target: str, partial: bool = False) -> type:
     )
 
 
-def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
-    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
-    check_types(cfg, entry)
-    _check_combinations(cfg, entry, resuming)
-
-
 def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
     nothing reads. `entry`: a key of SCHEMAS."""
@@ -315,8 +309,23 @@ def _targets(tree: dict, path: str):
             yield from _targets(value, here)
 
 
-def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
-    check_accelerator(cfg)
+def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
+    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
+    check_types(cfg, entry)
+    # A GPU asked for where torch finds none (Lightning says so in a traceback, after the data
+    # has loaded).
+    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
+
+    accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
+    wanted = {"gpu": (CUDAAccelerator, MPSAccelerator), "cuda": (CUDAAccelerator,),
+              "mps": (MPSAccelerator,)}.get(accelerator, ())  # fmt: skip
+    if wanted and not any(kind.is_available() for kind in wanted):
+        build = " (a CPU-only build)" if torch.version.cuda is None else ""
+        raise ConfigError(
+            f"trainer.accelerator={accelerator} asks for a GPU, and torch {torch.__version__}"
+            f"{build} finds none on this machine. Run on the CPU with trainer=cpu, or leave "
+            "trainer= out: trainer=default takes a GPU where there is one."
+        )
     if entry != "train":
         return
     model = cfg.get("model") or {}
@@ -363,22 +372,4 @@ def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
     raise ConfigError(
         f"iterations={iterations} is not a multiple of val_every={every} (training runs whole "
         f"validation periods); use {lengths}{other}."
-    )
-
-
-def check_accelerator(cfg: DictConfig) -> None:
-    """A GPU asked for where torch finds none (Lightning says so in a traceback, after the data
-    has loaded)."""
-    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
-
-    accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
-    wanted = {"gpu": (CUDAAccelerator, MPSAccelerator), "cuda": (CUDAAccelerator,),
-              "mps": (MPSAccelerator,)}.get(accelerator, ())  # fmt: skip
-    if not wanted or any(kind.is_available() for kind in wanted):
-        return
-    build = " (a CPU-only build)" if torch.version.cuda is None else ""
-    raise ConfigError(
-        f"trainer.accelerator={accelerator} asks for a GPU, and torch {torch.__version__}"
-        f"{build} finds none on this machine. Run on the CPU with trainer=cpu, or leave "
-        "trainer= out: trainer=default takes a GPU where there is one."
     )

@@ -22,18 +22,14 @@ from src.lit.config import ConfigError
 from src.lit.predictor import MotionPredictor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
-__all__ = ["ConfigError", "PROJECT_ROOT"]  # and the builders below
 
 
 def git_commit() -> str:
-    def git(*args: str) -> str:
-        run = subprocess.run(["git", *args], cwd=PROJECT_ROOT, capture_output=True, text=True)
-        run.check_returncode()
-        return run.stdout.strip()
-
+    """The short commit hash, "-dirty" with uncommitted changes to tracked files."""
+    cmd = ["git", "describe", "--always", "--dirty", "--exclude=*"]  # no tag names
     try:
-        dirty = git("status", "--porcelain", "--untracked-files=no")
-        return git("rev-parse", "--short", "HEAD") + ("-dirty" if dirty else "")
+        run = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
+        return run.stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
@@ -53,9 +49,8 @@ def _instantiate(node, **kwargs):
         raise
 
 
-def build_trainer(trainer_cfg: DictConfig, **kwargs):
-    """The Trainer of `trainer_cfg` (+ kwargs); a setting Lightning refuses is a ConfigError."""
-    return _instantiate(trainer_cfg, **kwargs)
+# The Trainer of a trainer config (+ kwargs); a setting Lightning refuses is a ConfigError.
+build_trainer = _instantiate
 
 
 def build_parts(cfg: DictConfig) -> None:
