@@ -1,10 +1,7 @@
-"""The types of the entry points' configs, each declared once, and the checks of a composed config.
-
-A key of a node Hydra instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's
-`builds`); every other key by the dataclasses below. OmegaConf checks a config against both before
-anything runs; the ranges of keys no constructor reads (`within`) and a few combinations are
-checked here.
-"""
+"""The types of the entry points' configs and the checks of a composed config: a node Hydra
+instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's `builds`), every
+other key by the dataclasses below; OmegaConf checks both, this module the ranges (`within`) of
+keys no constructor reads and a few combinations."""
 
 import contextlib
 import dataclasses
@@ -241,9 +238,8 @@ def _words(node: Any) -> str:
 
 
 def _check_as_written(plain: Any, typed: Any, path: str) -> None:
-    """OmegaConf converts 'no' to false and 1 to true as it checks, but the code reads values as
-    written: each must have its type already (a whole number stands for a number), and no
-    untyped value may be a word YAML takes for a boolean."""
+    """The code reads values as written, not as OmegaConf converts them ('no' to false, 1 to
+    true): each must have its type already, and no untyped value may be a YAML boolean word."""
     if isinstance(plain, dict) and isinstance(typed, DictConfig):
         for key, value in plain.items():
             if not (isinstance(value, dict) and "_target_" in value):  # checked on its own
@@ -260,14 +256,9 @@ def _check_as_written(plain: Any, typed: Any, path: str) -> None:
 
 
 def _as_written(value: Any, node: Any) -> bool:
-    if isinstance(node, BooleanNode):
-        return isinstance(value, bool)
-    if isinstance(node, (IntegerNode, FloatNode)) and isinstance(value, bool):
-        return False
-    if isinstance(node, IntegerNode):
-        return isinstance(value, int)
-    if isinstance(node, FloatNode):
-        return isinstance(value, (int, float))
+    kinds = {BooleanNode: bool, IntegerNode: int, FloatNode: (int, float)}.get(type(node))
+    if kinds is not None:  # a bool is an int to Python, not to a config
+        return isinstance(value, kinds) and (kinds is bool or not isinstance(value, bool))
     return not (isinstance(node, AnyNode) and str(value).lower() in BOOLEAN_WORDS)
 
 
@@ -312,8 +303,7 @@ def _targets(tree: dict, path: str):
 def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
     """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
     check_types(cfg, entry)
-    # A GPU asked for where torch finds none (Lightning says so in a traceback, after the data
-    # has loaded).
+    # A GPU where torch finds none: Lightning would say so in a traceback, after loading data.
     from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
 
     accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
