@@ -35,8 +35,7 @@ def git_commit() -> str:
 
 
 def _instantiate(node, **kwargs):
-    """hydra.utils.instantiate; what the constructor refuses is a one-line error, not a
-    traceback of Hydra's InstantiationException."""
+    """hydra.utils.instantiate; a constructor's refusal is one line, not Hydra's traceback."""
     try:
         return hydra.utils.instantiate(node, **kwargs)
     except InstantiationException as err:
@@ -44,8 +43,7 @@ def _instantiate(node, **kwargs):
         if isinstance(cause, (DataError, ConfigError)):
             raise cause from None
         if isinstance(cause, (ValueError, MisconfigurationException)):
-            target = node.get("_target_", "?") if hasattr(node, "get") else "?"
-            raise ConfigError(f"{target}: {cause}") from None
+            raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
         raise
 
 
@@ -55,13 +53,11 @@ build_trainer = _instantiate
 
 def build_parts(cfg: DictConfig) -> None:
     """Build, and drop, the data module, eta schedule and optimisers (on a stand-in parameter):
-    their constructors' refusals (eta outside [0, 1], a negative learning rate, batch_size=0)
-    so come before the run folder is made and any data is read."""
+    their constructors' refusals come before the run folder is made and any data is read."""
     build_datamodule(cfg.data)
     if cfg.get("sampling"):
         _instantiate(cfg.sampling)
-    adversarial = (cfg.get("adversarial") or {}).get("enabled")
-    for key in ("model.optimizer", *(["adversarial.optimizer"] if adversarial else [])):
+    for key in ("model.optimizer", "adversarial.optimizer"):  # lr > 0 is checked for both
         node = OmegaConf.select(cfg, key)
         if node is not None:
             try:
@@ -124,10 +120,9 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
 
 
 def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredictor:
-    """The one way to load a trained model: its MotionPredictor in eval mode with weights,
-    normaliser and saved config (`.run_info["config"]`), from the checkpoint alone (no data
-    file is read). `cfg`, an evaluation config: refuse a checkpoint whose model or data differ
-    from its model= / data=, and take its `metrics.dim_rule`."""
+    """The one way to load a trained model, from the checkpoint alone (no data file is read): its
+    MotionPredictor in eval mode, saved config in `.run_info["config"]`. `cfg`, an evaluation
+    config: refuse a checkpoint of another model= / data=; take its `metrics.dim_rule`."""
     ckpt = read_checkpoint(path)
     if cfg is not None:
         check_compatible(ckpt, cfg, path)
@@ -139,8 +134,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     normalizer.load_state_dict(
         {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
     )
-    # What build_module reads of a set-up datamodule: the data module class's attributes and
-    # the saved lengths.
+    # What build_module reads of a set-up datamodule: its class's attributes, the saved lengths.
     data, actions = hydra.utils.get_class(saved.data._target_), list(motion["actions"])
     facts = SimpleNamespace(
         normalizer=normalizer,
