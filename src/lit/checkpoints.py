@@ -1,12 +1,5 @@
-"""Checkpoint files: written during training, read and checked. Two per run:
-
-- `last.ckpt`, the resume point (weights, optimisers, LR schedulers, loops, random state),
-  rewritten atomically at every validation, every `checkpoint_every` iterations and on
-  SIGINT/SIGTERM. (Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it only with a new
-  best: a run whose error rose kept an old one.)
-- `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40), the best validation of the
-  whole run, resumes included: lean (weights, normaliser, config, actions), for evaluation.
-"""
+"""Checkpoint files: `last.ckpt`, the resume point (LastCheckpoint), and the lean
+`best-iterNNNNNN.ckpt` for evaluation (BestCheckpoint); reading and checking them."""
 
 from __future__ import annotations
 
@@ -47,11 +40,11 @@ class TrainingInterrupted(RuntimeError):
 
 
 class LastCheckpoint(Checkpoint):
-    """Writes `last.ckpt` at every validation, every `every` iterations (0: off) and, on
-    SIGINT/SIGTERM, after the iteration in progress, then stops with TrainingInterrupted; a
-    second signal aborts at once. A `Checkpoint` subclass, which the Trainer runs after every
-    other callback: the random state it saves is the one the next iteration starts from,
-    whatever the others drew (the frame-strip logger)."""
+    """Writes `last.ckpt` atomically at every validation, every `every` iterations (0: off) and,
+    on SIGINT/SIGTERM, after the iteration in progress, then stops with TrainingInterrupted; a
+    second signal aborts at once. (Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it
+    only with a new best.) The Trainer runs a `Checkpoint` after every other callback: the
+    random state saved is the one the next iteration starts from, whatever the others drew."""
 
     def __init__(self, dirpath: str | Path, every: int = 0):
         self.path = Path(dirpath) / LAST
@@ -74,10 +67,10 @@ class LastCheckpoint(Checkpoint):
         if self._signal is not None:  # second Ctrl-C: the user means it
             signal.signal(signum, self._previous.get(signum, signal.SIG_DFL))
             raise KeyboardInterrupt
-        self._signal, name = signum, signal.Signals(signum).name
-        again = "send it again to abort without saving"
+        self._signal = signum
         log.warning(
-            f"{name} received: finishing the current iteration, then writing {self.path} ({again})"
+            f"{signal.Signals(signum).name} received: finishing the current iteration, then "
+            f"writing {self.path} (send it again to abort without saving)"
         )
 
     def save(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -89,8 +82,8 @@ class LastCheckpoint(Checkpoint):
         trainer.strategy.barrier("last_checkpoint")
 
     def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:
-        """The signal that stops training, the same on every rank: a signal may reach one rank
-        only, which would wait alone at the save's barrier. One all-reduce per iteration."""
+        """The same on every rank (one all-reduce per iteration): a signal may reach one rank
+        only, which would wait alone at the save's barrier."""
         if trainer.world_size == 1:
             return self._signal
         signum = torch.tensor(self._signal or 0, device=pl_module.device)
@@ -115,10 +108,9 @@ class LastCheckpoint(Checkpoint):
 
 
 class BestCheckpoint(ModelCheckpoint):
-    """Lean `best-iterNNNNNN.ckpt` of the lowest validation error of the whole run; logs a
-    line per validation (iteration, error at each horizon, best so far). A resume writes into a
-    new folder, where Lightning forgets the best score and would save a worse model as best:
-    here it carries over, and no file of the earlier folder (the run's record) is deleted."""
+    """Lean `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40) of the whole run's
+    lowest validation error; logs a line per validation. In a resume's new folder Lightning
+    would forget the best score: here it carries over, and no earlier file is deleted."""
 
     def __init__(self, dirpath: str | Path, monitor: str = "val/euler_avg"):
         # No "=" in the name (auto_insert_metric_name): it would not parse as ckpt_path=...
@@ -213,13 +205,11 @@ def _unreadable(path: Path, err: Exception) -> str:
             "it holds Python objects besides tensors and plain containers, which are not "
             "loaded (weights_only: no code from a file runs); this project's checkpoints hold none"
         )
-    first = text.split(". ")[0].rstrip(".")  # a whole sentence, never cut mid-word
-    return f"the file is damaged ({first})"
+    return f"the file is damaged ({text.split('. ')[0].rstrip('.')})"  # a whole sentence
 
 
 def require_resumable(ckpt: dict, path: str | Path) -> None:
-    missing = [k for k in ("optimizer_states", "loops") if k not in ckpt]
-    if missing:
+    if not {"optimizer_states", "loops"} <= ckpt.keys():
         raise CheckpointError(
             f"{path} holds weights only (a lean best checkpoint), not the optimiser and loop "
             f"state a resume needs; resume from the run's {LAST} instead."
@@ -262,16 +252,14 @@ def check_normalizer(
     ckpt: dict, normalizer: Normalizer, path: str | Path, actions: list[str] | None = None
 ) -> None:
     """Refuse data whose statistics or actions differ: resuming on them changes the model."""
-    saved_actions = ckpt["motion"].get("actions")
-    if actions is not None and saved_actions is not None and list(actions) != saved_actions:
+    saved_actions = ckpt["motion"]["actions"]  # in every version's checkpoint, as normalizer.*
+    if actions is not None and list(actions) != saved_actions:
         raise CheckpointError(
             f"actions: checkpoint {path} was trained on actions {saved_actions}, the data "
             f"config gives {list(actions)}. Set data.actions as in the run that wrote it."
         )
     state = ckpt["state_dict"]
-    used = state.get("normalizer.used")
-    if used is None:
-        return
+    used = state["normalizer.used"]
     if used.shape != normalizer.used.shape or int(used.sum()) != normalizer.pose_dim:
         raise CheckpointError(
             f"pose dimension: checkpoint {path} uses {int(used.sum())} of {used.numel()} "

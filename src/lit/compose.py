@@ -1,5 +1,4 @@
-"""Compose a Hydra config in-process, as `python -m src.<name>` would (src.report, the
-notebooks, the tests)."""
+"""A Hydra config composed in-process as `python -m src.<name>` would (report, notebooks, tests)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
-"""The types of the entry points' configs, each declared once, and the checks of a composed config.
-
-A key of a node Hydra instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's
-`builds`); every other key by the dataclasses below. OmegaConf checks a config against both before
-anything runs; the ranges of keys no constructor reads (`within`) and a few combinations are
-checked here.
-"""
+"""The types of the entry points' configs and the checks of a composed config: a node Hydra
+instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's `builds`), every
+other key by the dataclasses below; OmegaConf checks both, this module the ranges (`within`) of
+keys no constructor reads and a few combinations."""
 
 import contextlib
 import dataclasses
@@ -172,12 +169,6 @@ def constructor_schema(target: str, partial: bool = False) -> type:
     )
 
 
-def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
-    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
-    check_types(cfg, entry)
-    _check_combinations(cfg, entry, resuming)
-
-
 def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
     nothing reads. `entry`: a key of SCHEMAS."""
@@ -247,9 +238,8 @@ def _words(node: Any) -> str:
 
 
 def _check_as_written(plain: Any, typed: Any, path: str) -> None:
-    """OmegaConf converts 'no' to false and 1 to true as it checks, but the code reads values as
-    written: each must have its type already (a whole number stands for a number), and no
-    untyped value may be a word YAML takes for a boolean."""
+    """The code reads values as written, not as OmegaConf converts them ('no' to false, 1 to
+    true): each must have its type already, and no untyped value may be a YAML boolean word."""
     if isinstance(plain, dict) and isinstance(typed, DictConfig):
         for key, value in plain.items():
             if not (isinstance(value, dict) and "_target_" in value):  # checked on its own
@@ -266,14 +256,9 @@ def _check_as_written(plain: Any, typed: Any, path: str) -> None:
 
 
 def _as_written(value: Any, node: Any) -> bool:
-    if isinstance(node, BooleanNode):
-        return isinstance(value, bool)
-    if isinstance(node, (IntegerNode, FloatNode)) and isinstance(value, bool):
-        return False
-    if isinstance(node, IntegerNode):
-        return isinstance(value, int)
-    if isinstance(node, FloatNode):
-        return isinstance(value, (int, float))
+    kinds = {BooleanNode: bool, IntegerNode: int, FloatNode: (int, float)}.get(type(node))
+    if kinds is not None:  # a bool is an int to Python, not to a config
+        return isinstance(value, kinds) and (kinds is bool or not isinstance(value, bool))
     return not (isinstance(node, AnyNode) and str(value).lower() in BOOLEAN_WORDS)
 
 
@@ -315,8 +300,22 @@ def _targets(tree: dict, path: str):
             yield from _targets(value, here)
 
 
-def _check_combinations(cfg: DictConfig, entry: str, resuming: bool) -> None:
-    check_accelerator(cfg)
+def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
+    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
+    check_types(cfg, entry)
+    # A GPU where torch finds none: Lightning would say so in a traceback, after loading data.
+    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
+
+    accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
+    wanted = {"gpu": (CUDAAccelerator, MPSAccelerator), "cuda": (CUDAAccelerator,),
+              "mps": (MPSAccelerator,)}.get(accelerator, ())  # fmt: skip
+    if wanted and not any(kind.is_available() for kind in wanted):
+        build = " (a CPU-only build)" if torch.version.cuda is None else ""
+        raise ConfigError(
+            f"trainer.accelerator={accelerator} asks for a GPU, and torch {torch.__version__}"
+            f"{build} finds none on this machine. Run on the CPU with trainer=cpu, or leave "
+            "trainer= out: trainer=default takes a GPU where there is one."
+        )
     if entry != "train":
         return
     model = cfg.get("model") or {}
@@ -363,22 +362,4 @@ def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
     raise ConfigError(
         f"iterations={iterations} is not a multiple of val_every={every} (training runs whole "
         f"validation periods); use {lengths}{other}."
-    )
-
-
-def check_accelerator(cfg: DictConfig) -> None:
-    """A GPU asked for where torch finds none (Lightning says so in a traceback, after the data
-    has loaded)."""
-    from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
-
-    accelerator = OmegaConf.select(cfg, "trainer.accelerator", default=None)
-    wanted = {"gpu": (CUDAAccelerator, MPSAccelerator), "cuda": (CUDAAccelerator,),
-              "mps": (MPSAccelerator,)}.get(accelerator, ())  # fmt: skip
-    if not wanted or any(kind.is_available() for kind in wanted):
-        return
-    build = " (a CPU-only build)" if torch.version.cuda is None else ""
-    raise ConfigError(
-        f"trainer.accelerator={accelerator} asks for a GPU, and torch {torch.__version__}"
-        f"{build} finds none on this machine. Run on the CPU with trainer=cpu, or leave "
-        "trainer= out: trainer=default takes a GPU where there is one."
     )

@@ -1,9 +1,6 @@
-"""Schedules for the sampling parameter eta of Li et al. eq. (10): the weight of the model's own
-prediction in the frames fed back to the decoder in training (1: predictions only, Martinez's
-"sampling-based loss"; 0: teacher forcing). Evaluation always decodes with eta = 1.
-
-A schedule is a pure function of the iteration, so a resume continues it exactly.
-"""
+"""Schedules of eta, Li et al. eq. (10): the weight of the model's own prediction in the frames
+fed back to the decoder in training (1: Martinez's "sampling-based loss"; 0: teacher forcing;
+evaluation: 1). A pure function of the iteration, so a resume continues it exactly."""
 
 from __future__ import annotations
 

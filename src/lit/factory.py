@@ -22,25 +22,20 @@ from src.lit.config import ConfigError
 from src.lit.predictor import MotionPredictor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
-__all__ = ["ConfigError", "PROJECT_ROOT"]  # and the builders below
 
 
 def git_commit() -> str:
-    def git(*args: str) -> str:
-        run = subprocess.run(["git", *args], cwd=PROJECT_ROOT, capture_output=True, text=True)
-        run.check_returncode()
-        return run.stdout.strip()
-
+    """The short commit hash, "-dirty" with uncommitted changes to tracked files."""
+    cmd = ["git", "describe", "--always", "--dirty", "--exclude=*"]  # no tag names
     try:
-        dirty = git("status", "--porcelain", "--untracked-files=no")
-        return git("rev-parse", "--short", "HEAD") + ("-dirty" if dirty else "")
+        run = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
+        return run.stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
 
 def _instantiate(node, **kwargs):
-    """hydra.utils.instantiate; what the constructor refuses is a one-line error, not a
-    traceback of Hydra's InstantiationException."""
+    """hydra.utils.instantiate; a constructor's refusal is one line, not Hydra's traceback."""
     try:
         return hydra.utils.instantiate(node, **kwargs)
     except InstantiationException as err:
@@ -48,25 +43,21 @@ def _instantiate(node, **kwargs):
         if isinstance(cause, (DataError, ConfigError)):
             raise cause from None
         if isinstance(cause, (ValueError, MisconfigurationException)):
-            target = node.get("_target_", "?") if hasattr(node, "get") else "?"
-            raise ConfigError(f"{target}: {cause}") from None
+            raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
         raise
 
 
-def build_trainer(trainer_cfg: DictConfig, **kwargs):
-    """The Trainer of `trainer_cfg` (+ kwargs); a setting Lightning refuses is a ConfigError."""
-    return _instantiate(trainer_cfg, **kwargs)
+# The Trainer of a trainer config (+ kwargs); a setting Lightning refuses is a ConfigError.
+build_trainer = _instantiate
 
 
 def build_parts(cfg: DictConfig) -> None:
     """Build, and drop, the data module, eta schedule and optimisers (on a stand-in parameter):
-    their constructors' refusals (eta outside [0, 1], a negative learning rate, batch_size=0)
-    so come before the run folder is made and any data is read."""
+    their constructors' refusals come before the run folder is made and any data is read."""
     build_datamodule(cfg.data)
     if cfg.get("sampling"):
         _instantiate(cfg.sampling)
-    adversarial = (cfg.get("adversarial") or {}).get("enabled")
-    for key in ("model.optimizer", *(["adversarial.optimizer"] if adversarial else [])):
+    for key in ("model.optimizer", "adversarial.optimizer"):  # lr > 0 is checked for both
         node = OmegaConf.select(cfg, key)
         if node is not None:
             try:
@@ -129,10 +120,9 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
 
 
 def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredictor:
-    """The one way to load a trained model: its MotionPredictor in eval mode with weights,
-    normaliser and saved config (`.run_info["config"]`), from the checkpoint alone (no data
-    file is read). `cfg`, an evaluation config: refuse a checkpoint whose model or data differ
-    from its model= / data=, and take its `metrics.dim_rule`."""
+    """The one way to load a trained model, from the checkpoint alone (no data file is read): its
+    MotionPredictor in eval mode, saved config in `.run_info["config"]`. `cfg`, an evaluation
+    config: refuse a checkpoint of another model= / data=; take its `metrics.dim_rule`."""
     ckpt = read_checkpoint(path)
     if cfg is not None:
         check_compatible(ckpt, cfg, path)
@@ -144,8 +134,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
     normalizer.load_state_dict(
         {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
     )
-    # What build_module reads of a set-up datamodule: the data module class's attributes and
-    # the saved lengths.
+    # What build_module reads of a set-up datamodule: its class's attributes, the saved lengths.
     data, actions = hydra.utils.get_class(saved.data._target_), list(motion["actions"])
     facts = SimpleNamespace(
         normalizer=normalizer,

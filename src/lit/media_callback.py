@@ -1,5 +1,4 @@
-"""A frame strip of one evaluation window in TensorBoard (Images, `media/...`) after
-validations: how a run's predicted motion evolves."""
+"""A frame strip of one evaluation window in TensorBoard (`media/...`) after validations."""
 
 from __future__ import annotations
 
@@ -25,7 +24,7 @@ class FrameStripLogger(Callback):
     @classmethod
     def from_config(cls, cfg: DictConfig) -> list[FrameStripLogger]:
         """[logger] for `media_every: n` (n >= 1), [] for 0 or absent."""
-        every = int(cfg.get("media_every", 0) or 0)
+        every = int(cfg.get("media_every") or 0)
         return [cls(every_n_validations=every)] if every > 0 else []
 
     def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:

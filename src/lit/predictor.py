@@ -1,12 +1,9 @@
-"""The LightningModule of every architecture and baseline.
-
-A training iteration of Li et al. (protocol §6.6), optimised by hand: the discriminator's
-objective, eq. (8), on one batch, then the generator's, eq. (9) = reconstruction (7) +
-lambda_2 * L2(weights) + lambda_adv * adversarial term, on another batch (without a
-discriminator, the generator's step alone). Any Trainer trains it as src.train does: it sets
-the draws per iteration, stops at `iterations`, and global_step counts iterations. Validation
-decodes autoregressively (eta = 1) and reports Euler error (protocol §4) and MPJPE.
-"""
+"""The LightningModule of every architecture and baseline. A training iteration of Li et al.
+(protocol §6.6), optimised by hand: the discriminator's objective, eq. (8), on one batch, then
+the generator's, eq. (9) = reconstruction (7) + lambda_2 * L2(weights) + lambda_adv *
+adversarial term, on another. Any Trainer trains it as src.train does (it sets the draws per
+iteration, stops at `iterations`; global_step counts iterations). Validation decodes
+autoregressively (eta = 1): Euler error (protocol §4) and MPJPE."""
 
 from __future__ import annotations
 
@@ -46,9 +43,8 @@ def _host(value: float) -> Tensor:
 
 
 def add_l2_gradient_(module: nn.Module, weight: float) -> None:
-    """Add weight * w, the gradient of weight * l2_penalty(module), to every weight's .grad
-    after backward. Not backpropagated: that graph took 85 ms of a 1.16 s conv_s2s +
-    adversarial CPU step; this takes 3 ms (tests/test_train.py compares the two)."""
+    """Add weight * w, the gradient of weight * l2_penalty(module), to each weight's .grad after
+    backward: 3 ms, where backpropagating it took 85 ms of a 1.16 s conv_s2s + adversarial step."""
     for p in module.parameters():
         if p.ndim > 1 and p.grad is not None:
             p.grad.add_(p.detach(), alpha=weight)
@@ -175,9 +171,8 @@ class MotionPredictor(L.LightningModule):
         return eta
 
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
-        """The 75 frames the discriminator judges: observed, then the ground truth `future` (real)
-        or the prediction `fake`. `reference_fake_slot`: the reference's fake sample, with the
-        first future frame in the last observed slot (protocol §6.5: w[0..48], w[50], ...)."""
+        """The 75 frames D judges: observed, then `future` (real) or the prediction `fake`, with the
+        first future frame in the last observed slot if `reference_fake_slot` (protocol §6.5)."""
         if fake is None:
             return torch.cat([observed, future], dim=1)
         if self.reference_fake_slot:
@@ -242,8 +237,7 @@ class MotionPredictor(L.LightningModule):
                 self._eta_tensor = torch.zeros((), device=self.device)
             eta_in = self._eta_tensor.fill_(eta)
         optimizers, schedulers = self.optimizers(), self.lr_schedulers()
-        optimizers = optimizers if isinstance(optimizers, list) else [optimizers]
-        schedulers = schedulers if isinstance(schedulers, list) else [schedulers]
+        opt_g, opt_d = optimizers if isinstance(optimizers, list) else (optimizers, None)
         logs: dict[str, Tensor] = {"train/eta": _host(eta)}
         d_losses: dict[str, Tensor] = {}
 
@@ -252,7 +246,6 @@ class MotionPredictor(L.LightningModule):
             (obs_d, obs_g), (fut_d, fut_g), (act_d, act_g) = (
                 t.chunk(2) for t in (observed, future, action)
             )
-            opt_d = optimizers[1]
             self.toggle_optimizer(opt_d)
             loss_d_adv, d_real = d_objective(obs_d, fut_d, act_d, eta_in)
             loss_d = loss_d_adv.detach() + self.lambda_2_d * l2_penalty(self.discriminator)
@@ -267,7 +260,6 @@ class MotionPredictor(L.LightningModule):
             logs |= {"train/loss_d": loss_d.clone(), "train/d_real": d_real.clone()}
             observed, future, action = obs_g, fut_g, act_g
 
-        opt_g = optimizers[0]
         if self.adversarial:
             self.toggle_optimizer(opt_g)
         loss_backprop, loss_recon, loss_adv = g_objective(observed, future, action, eta_in)
@@ -288,7 +280,7 @@ class MotionPredictor(L.LightningModule):
         if self.adversarial:
             self.untoggle_optimizer(opt_g)
             logs["train/loss_adv"] = loss_adv.clone()
-        for sch in schedulers:
+        for sch in schedulers if isinstance(schedulers, list) else [schedulers]:
             sch.step()
         self._host_iteration = self.host_iteration + 1
         self.iteration += 1
@@ -296,7 +288,7 @@ class MotionPredictor(L.LightningModule):
         logs |= {"train/loss_g": loss_g, "train/loss_recon": loss_recon, "train/loss_l2": loss_l2}
         logs["train/lr"] = _host(opt_g.param_groups[0]["lr"])
         if self.adversarial:
-            logs["train/lr_d"] = _host(optimizers[1].param_groups[0]["lr"])
+            logs["train/lr_d"] = _host(opt_d.param_groups[0]["lr"])
         self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
         # The bar's number, on the host: Lightning reads it at every batch (a sync on a GPU).
         every = self._trainer.log_every_n_steps if self._trainer is not None else 0
@@ -351,23 +343,19 @@ class MotionPredictor(L.LightningModule):
         euler, mpjpe = self.euler.compute(), self.mpjpe.compute()
         self.euler.reset(), self.mpjpe.reset()
         self.last_results = {"euler": euler.cpu(), "mpjpe": mpjpe.cpu()}
-        if self.trainer.sanity_checking:
+        present = [i for i in range(len(self.actions)) if not math.isnan(euler[i, 0].item())]
+        if self.trainer.sanity_checking or not present:
             return
         logs: dict[str, float] = {}
-        present = [i for i in range(len(self.actions)) if not math.isnan(euler[i, 0].item())]
         for name, values in (("euler", euler), ("mpjpe", mpjpe)):
             for ms, k in self.horizons.items():
                 # Zero-padded ms so TensorBoard sorts the tags by horizon.
                 for i in present:
                     logs[f"{stage}_{name}/{self.actions[i]}/{ms:04d}ms"] = values[i, k].item()
-                if present:
-                    logs[f"{stage}_{name}/average/{ms:04d}ms"] = values[present, k].mean().item()
-        if present:
+                logs[f"{stage}_{name}/average/{ms:04d}ms"] = values[present, k].mean().item()
             idx = list(self.horizons.values())
-            logs[f"{stage}/euler_avg"] = euler[present][:, idx].mean().item()
-            logs[f"{stage}/mpjpe_avg"] = mpjpe[present][:, idx].mean().item()
-        # Every DDP rank holds the same values (compute() all-reduces): sync_dist only keeps
-        # Lightning from warning once per key.
+            logs[f"{stage}/{name}_avg"] = values[present][:, idx].mean().item()
+        # compute() all-reduced: sync_dist=True only keeps Lightning from warning once per key.
         self.log_dict(logs, sync_dist=True)
 
     def on_test_epoch_end(self) -> None:

@@ -1,16 +1,11 @@
-"""A plain progress line where people look when there is no terminal.
-
-The progress bar redraws one line of a terminal; sent to a file (`> log 2>&1`, a cluster job)
-it shows nothing for minutes. `ProgressLog` logs `iteration 120/20000 (0.6%) | 0.61 it/s |
-ETA 9h03m | loss_g 0.0412 ...` every `every_s` seconds: Hydra's file handler puts it in the
-run's train.log, and the console handler, through `OffTerminalOnly` (conf/hydra/default.yaml),
-on stdout when stdout is not a terminal.
-"""
+"""A plain progress line where there is no terminal: the progress bar, sent to a file (a
+cluster job's log), shows nothing for minutes. It goes to train.log, and to stdout when that is
+not a terminal (`OffTerminalOnly`, conf/hydra/default.yaml)."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import math
 import sys
 import time
 
@@ -20,21 +15,17 @@ from lightning.pytorch.callbacks import Callback
 log = logging.getLogger(__name__)
 
 
-def duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "?"
-    minutes, s = divmod(int(round(seconds)), 60)
-    h, m = divmod(minutes, 60)
-    return f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
-
-
 def progress_line(iteration: int, total: int, rate: float, losses: dict[str, float]) -> str:
-    """Where the run is, how fast it goes, when it ends, the last losses."""
-    eta = (total - iteration) / rate if rate > 0 else math.inf
+    """`iteration 120/20000 (0.6%) | 0.61 it/s | ETA 9h03m | loss_g 0.0412 ...`"""
+    eta = "?"
+    if rate > 0:
+        minutes, s = divmod(int(round((total - iteration) / rate)), 60)
+        h, m = divmod(minutes, 60)
+        eta = f"{h}h{m:02d}m" if h else f"{m}m{s:02d}s" if m else f"{s}s"
     parts = [
         f"iteration {iteration}/{total} ({100 * iteration / max(total, 1):.1f}%)",
         f"{rate:.3g} it/s",
-        f"ETA {duration(eta)}",
+        f"ETA {eta}",
     ]
     if losses:
         parts.append(" ".join(f"{name} {value:.4g}" for name, value in losses.items()))
@@ -43,13 +34,11 @@ def progress_line(iteration: int, total: int, rate: float, losses: dict[str, flo
 
 class ProgressLog(Callback):
     """Logs `progress_line` at most every `every_s` seconds (0: every iteration), on rank 0.
-    The rate counts the wall time since training started, validations included: the ETA is
-    the time the run will really take."""
+    The rate counts validations too: the ETA is the time the run will really take."""
 
     def __init__(self, total: int, every_s: float):
         self.total, self.every_s = int(total), float(every_s)
-        self._start = self._last = 0.0
-        self._first = 0
+        self._start = self._last = self._first = 0
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._start = self._last = time.monotonic()
@@ -74,8 +63,6 @@ class OffTerminalOnly(logging.Filter):
     """For the console handler: progress lines pass only when stdout is not a terminal."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        try:
-            terminal = sys.stdout.isatty()
-        except (AttributeError, ValueError):  # replaced or closed stdout
-            terminal = False
-        return record.name != __name__ or not terminal
+        with contextlib.suppress(AttributeError, ValueError):  # replaced or closed stdout
+            return record.name != __name__ or not sys.stdout.isatty()
+        return True

@@ -1,10 +1,7 @@
-"""Resumes: a resume continues a run, not a config.
-
-`restore_run` takes the run's own `config.yaml` (saved resolved, beside its `checkpoints/`) and
-puts the command line's overrides on top. Where files live is this command's (FROM_HERE); the
-length, logging and the Trainer's settings may change (FREE); an override of anything else,
-which would change what the run computes, is refused naming each key with both values.
-"""
+"""A resume continues a run, not a config: `restore_run` puts the command line's overrides on
+top of the run's own `config.yaml` (beside its `checkpoints/`). Where files live is this
+command's (FROM_HERE); the length, logging and the Trainer's settings may change (FREE); an
+override of anything else is refused naming each key with both values."""
 
 from __future__ import annotations
 
@@ -50,8 +47,7 @@ class Resume:
 
 
 def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
-    """The checkpoint named by `resume=<run folder>` (its checkpoints/last.ckpt) or
-    `ckpt_path=`."""
+    """The checkpoint of `resume=<run folder>` (its checkpoints/last.ckpt) or `ckpt_path=`."""
     resume, ckpt = cfg.get("resume"), cfg.get("ckpt_path")
     if not resume:
         return Path(str(ckpt)) if ckpt else None
@@ -114,10 +110,9 @@ def _leaves(root: DictConfig, key: str, tree: Any = _ABSENT) -> dict[str, Any]:
 def restore_run(
     cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
 ) -> tuple[DictConfig, Resume | None]:
-    """The configuration that continues the run of the checkpoint `cfg` names: the run's own,
-    with `overrides` (the command line; `choices` its config-group options) on top; `cfg`
-    itself when it names none. Raises CheckpointError naming every key the overrides would
-    change but FREE ones."""
+    """The config that continues the run of the checkpoint `cfg` names (`cfg` when none): the
+    run's own, with `overrides` (`choices`: their config-group options) on top; a
+    CheckpointError names every key but FREE ones that they would change."""
     ckpt = checkpoint_to_resume(cfg)
     if ckpt is None:
         return cfg, None
@@ -138,10 +133,8 @@ def restore_run(
         run_choices = OmegaConf.to_container(hydra_yaml.hydra.runtime.choices)
 
     raw = OmegaConf.to_container(cfg, resolve=False)
-    restored = OmegaConf.create(OmegaConf.to_container(saved, resolve=False))
-    for key, value in raw.items():  # keys added to the project since the run: today's defaults
-        if key not in restored:
-            restored[key] = value
+    # Keys added to the project since the run: today's defaults.
+    restored = OmegaConf.create({**raw, **OmegaConf.to_container(saved, resolve=False)})
     for key in FROM_HERE:  # unresolved: they point at this run's folder, not yet created
         _put(restored, key, _raw(raw, key))
     _put(restored, "ckpt_path", str(ckpt))
@@ -209,9 +202,8 @@ _prepared: tuple[dict, Resume | None] | None = None
 def prepare_training(
     cfg: DictConfig, overrides: list[str], choices: dict[str, Any]
 ) -> tuple[DictConfig, Resume | None]:
-    """The config a training run runs with, once per run: restore_run, check, and build the
-    objects whose constructors check their own arguments (factory.build_parts), so that every
-    refusal comes before the run folder and the data."""
+    """A training run's config, once per run: restore_run, check, build_parts: every refusal
+    comes before the run folder and the data."""
     global _prepared
     if _prepared is not None and _prepared[0] == OmegaConf.to_container(cfg, resolve=False):
         return cfg, _prepared[1]

@@ -1,10 +1,7 @@
 """Run folders, settled before anything is written, and the one way a refusal reaches the user.
-
-Every run gets a new folder (claim_folder: runs started in the same second get `<time>` and
-`<time>-1`); one named with `hydra.run.dir=...` is refused when it holds a run. `PrepareRun`
-checks a training run's config before its folder exists, so a refused config creates none;
-what is found later (a misspelt action) removes the folder made for it.
-"""
+Every run gets a new folder (`<time>`, `<time>-1`, ...); one named with `hydra.run.dir=...` is
+refused when it holds a run. A refused config creates no folder (`PrepareRun`); what is found
+later (a misspelt action) removes the folder made for it."""
 
 from __future__ import annotations
 
@@ -39,8 +36,7 @@ def refuse(err: object) -> NoReturn:
 
 
 def path_safe(text: str) -> str:
-    """`text` with what Hydra's override parser stops at (or a shell expands) replaced by `_`:
-    a sweep job's folder works as printed in `ckpt_path=...`."""
+    """`text` with `_` for what stops Hydra's parser or a shell: a folder works in `ckpt_path=`."""
     return re.sub(r"[^A-Za-z0-9_.+@-]", "_", str(text))
 
 
@@ -73,8 +69,7 @@ def register_resolvers() -> None:
     """The resolvers conf/ uses (registered on import, too)."""
     for name, resolver in (("project_root", lambda: str(PROJECT_ROOT)),
                            ("evaluated", evaluated_name), ("path_safe", path_safe)):  # fmt: skip
-        if not OmegaConf.has_resolver(name):
-            OmegaConf.register_new_resolver(name, resolver)
+        OmegaConf.register_new_resolver(name, resolver, replace=True)
 
 
 register_resolvers()
@@ -123,9 +118,8 @@ def nothing_left_if_refused(started: str | None = "config.yaml"):
     except USER_ERRORS:
         folder = Path(HydraConfig.get().runtime.output_dir)
         claimed = _claimed.get("folder")
-        if claimed is None or claimed.resolve() != folder.resolve():
-            raise
-        if started and (folder / started).exists():
+        mine = claimed is not None and claimed.resolve() == folder.resolve()
+        if not mine or (started and (folder / started).exists()):
             raise
         for name in set(os.listdir(folder)) - _claimed["before"]:
             path = folder / name
@@ -151,9 +145,8 @@ def _claim(config: DictConfig, key: str) -> Path:
 
 
 class PrepareRun(Callback):
-    """Restore and check a training run's config (prepare_training), then claim the run
-    folder: a refused config creates none, and Hydra writes only into the folder claimed here.
-    (Hydra turns an exception raised in a callback into a warning: a refusal exits here.)"""
+    """Restore and check a training run's config (prepare_training), then claim the run folder
+    Hydra writes into. A refusal exits here: Hydra turns a callback's exception into a warning."""
 
     def on_run_start(self, config: DictConfig, config_name: str | None = None, **kwargs) -> None:
         from lightning.pytorch.utilities import rank_zero_only
