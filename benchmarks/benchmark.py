@@ -109,7 +109,7 @@ def module(kind: str, device: torch.device) -> MotionPredictor:
     ).to(device)
     # Bind the Lightning hooks training_step calls to plain PyTorch: no Trainer needed.
     opts, scheds = m.configure_optimizers()
-    m.optimizers = lambda: opts
+    m.optimizers = lambda: opts if len(opts) > 1 else opts[0]  # as Lightning returns them
     m.lr_schedulers = lambda: scheds
     params = [p for o in opts for g in o.param_groups for p in g["params"]]
 
