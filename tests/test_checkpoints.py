@@ -292,7 +292,7 @@ def test_each_validation_logs_one_line_with_the_best_so_far(
 def test_a_best_checkpoint_of_the_earlier_naming_carries_over_a_resume(
     rising_error, tmp_path, synthetic_data_dir
 ):
-    """Runs before issue 40 named the best file by Lightning's epoch (best-epoch000.ckpt):
+    """Runs of earlier versions named the best file by Lightning's epoch (best-epoch000.ckpt):
     resuming such a run keeps it as the best, and it loads for evaluation."""
     from src.lit.factory import load_trained
 

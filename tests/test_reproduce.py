@@ -176,7 +176,7 @@ def test_two_seeds_run_at_once_with_joblib_and_the_report_aggregates_them(
         assert f" {mean:.2f} ± {std:.2f} " in row, row
     # Both the lean best checkpoint and the resumable last.ckpt were read and evaluated.
     for run in group["runs"]:
-        assert re.fullmatch(r".*best-epoch\d+\.ckpt", str(run["checkpoints"]["best"]))
+        assert re.fullmatch(r".*best-iter\d{6}\.ckpt", str(run["checkpoints"]["best"]))
         assert str(run["checkpoints"]["last"]).endswith("last.ckpt")
 
     # Plain run folders give the same page body.
