@@ -3,6 +3,7 @@ and the location of the real archives (MOTION_ARCHIVES)."""
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -61,6 +62,49 @@ def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: 
     env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "PYTHONUNBUFFERED": "1"}
     cmd = [sys.executable, "-m", module, f"paths.log_dir={log_dir}", *args]
     return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+
+
+HELP_SCRIPT = """
+import contextlib, io, json, runpy, sys
+from hydra.core.global_hydra import GlobalHydra
+texts = {}
+for module in sys.argv[1:]:
+    sys.argv, out, code = [module, "--help"], io.StringIO(), None
+    with contextlib.redirect_stdout(out):
+        try:
+            runpy.run_module(module, run_name="__main__")
+        except SystemExit as e:
+            code = e.code
+    GlobalHydra.instance().clear()
+    texts[module] = [code, out.getvalue()]
+print(json.dumps(texts))
+"""
+
+
+@pytest.fixture(scope="session")
+def help_text(tmp_path_factory):
+    """help_text(module): what `python -m <module> --help` prints. Every entry point's help comes
+    from one process: importing torch and Lightning is most of a run, and --help exits first."""
+    modules = ["src.train", "src.eval", "src.visualize", "src.plot_errors", "src.report"]
+    modules += ["src.export_windows"]
+    tmp = tmp_path_factory.mktemp("help")
+    env = {**os.environ, "MOTION_DATA_DIR": str(tmp)}
+    proc = subprocess.run(
+        [sys.executable, "-c", HELP_SCRIPT, *modules],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    texts = json.loads(proc.stdout.splitlines()[-1])
+
+    def get(module: str) -> str:
+        code, text = texts[module]
+        assert code in (0, None), f"{module} --help exited with {code}"
+        return text
+
+    return get
 
 
 @pytest.fixture(scope="session")

@@ -308,26 +308,20 @@ def test_every_shipped_config_passes_the_constructor_check(experiment, train_cfg
 
 
 # ------------------------------------------------------------ row 10: --help
-def _help(entry: str, tmp_path) -> str:
-    proc = run_module(entry, "--help", data_dir=tmp_path, log_dir=tmp_path)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    return proc.stdout
-
-
 def _options(group: str) -> set[str]:
     return {p.stem for p in (CONF / group).glob("*.yaml")}
 
 
-def test_train_help_lists_its_groups(tmp_path):
-    text = _help("src.train", tmp_path)
+def test_train_help_lists_its_groups(help_text):
+    text = help_text("src.train")
     for group in ("data", "model", "sampling", "adversarial", "trainer", "experiment", "debug"):
         line = next(x for x in text.splitlines() if x.startswith(f"{group}: "))
         assert set(line.split(": ", 1)[1].split(", ")) == _options(group)
 
 
 @pytest.mark.parametrize("entry", ["src.eval", "src.visualize"])
-def test_eval_and_visualize_help_list_only_what_they_accept(entry, tmp_path):
-    text = _help(entry, tmp_path)
+def test_eval_and_visualize_help_list_only_what_they_accept(entry, help_text):
+    text = help_text(entry)
     groups = text.split("== Config groups (group=option) ==")[1].split("==")[0]
     listed = dict(re.findall(r"^(\w+): ([\w, ]+?)\s{2,}", groups, flags=re.M))
     assert set(listed) == {"data", "model", "trainer"}
@@ -343,14 +337,14 @@ def test_eval_and_visualize_help_list_only_what_they_accept(entry, tmp_path):
     assert "ckpt_path=" in text
 
 
-def test_plot_errors_help_lists_its_arguments(tmp_path):
-    text = _help("src.plot_errors", tmp_path)
+def test_plot_errors_help_lists_its_arguments(help_text):
+    text = help_text("src.plot_errors")
     for key in ("results=", "metric=", "action=", "labels=", "published=", "out="):
         assert f"\n  {key}" in text
 
 
-def test_report_help_lists_its_arguments(tmp_path):
-    text = _help("src.report", tmp_path)
+def test_report_help_lists_its_arguments(help_text):
+    text = help_text("src.report")
     for key in ("runs=", "records=", "out=", "readme=", "budget=", "datasets=", "protocols="):
         assert f"\n{key}" in text
 
