@@ -64,45 +64,52 @@ def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: 
     return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
 
 
-HELP_SCRIPT = """
-import contextlib, io, json, runpy, sys
+ONE_PROCESS = """
+import contextlib, io, json, os, runpy, sys
 from hydra.core.global_hydra import GlobalHydra
-texts = {}
-for module in sys.argv[1:]:
-    sys.argv, out, code = [module, "--help"], io.StringIO(), None
-    with contextlib.redirect_stdout(out):
+results = []
+for argv in json.loads(sys.argv[1]):
+    sys.argv, out, err, code = argv, io.StringIO(), io.StringIO(), 0
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
-            runpy.run_module(module, run_name="__main__")
+            runpy.run_module(argv[0], run_name="__main__")
         except SystemExit as e:
-            code = e.code
+            code = 0 if e.code is None else e.code
     GlobalHydra.instance().clear()
-    texts[module] = [code, out.getvalue()]
-print(json.dumps(texts))
+    results.append([code, out.getvalue(), err.getvalue()])
+print(json.dumps(results))
 """
+
+
+def run_in_one_process(*invocations: list[str], data_dir: Path, log_dir: Path):
+    """`python -m <module> args...` for each [module, *args], one after the other in one
+    process, as run_module would run them: importing torch and Lightning is most of a short
+    run. Returns a CompletedProcess (returncode, stdout, stderr) per invocation."""
+    argvs = [[m, f"paths.log_dir={log_dir}", *args] for m, *args in invocations]
+    env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.run(
+        [sys.executable, "-c", ONE_PROCESS, json.dumps(argvs)],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    results = json.loads(proc.stdout.splitlines()[-1])
+    return [subprocess.CompletedProcess(a, *r) for a, r in zip(argvs, results, strict=True)]
 
 
 @pytest.fixture(scope="session")
 def help_text(tmp_path_factory):
-    """help_text(module): what `python -m <module> --help` prints. Every entry point's help comes
-    from one process: importing torch and Lightning is most of a run, and --help exits first."""
+    """help_text(module): what `python -m <module> --help` prints, for every entry point from
+    one process."""
     modules = ["src.train", "src.eval", "src.visualize", "src.plot_errors", "src.report"]
     modules += ["src.export_windows"]
     tmp = tmp_path_factory.mktemp("help")
-    env = {**os.environ, "MOTION_DATA_DIR": str(tmp)}
-    proc = subprocess.run(
-        [sys.executable, "-c", HELP_SCRIPT, *modules],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    texts = json.loads(proc.stdout.splitlines()[-1])
+    procs = run_in_one_process(*([m, "--help"] for m in modules), data_dir=tmp, log_dir=tmp)
+    texts = dict(zip(modules, procs, strict=True))
 
     def get(module: str) -> str:
-        code, text = texts[module]
-        assert code in (0, None), f"{module} --help exited with {code}"
-        return text
+        proc = texts[module]
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return proc.stdout
 
     return get
 

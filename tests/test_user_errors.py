@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 from src.data.errors import DataError
 from src.lit.factory import ConfigError
-from tests.conftest import CONF, compose_config, run_module
+from tests.conftest import CONF, compose_config, run_in_one_process, run_module
 
 
 def _error_line(proc) -> str:
@@ -163,19 +163,19 @@ def test_visualize_title_names_the_real_dataset(synthetic_zero_velocity):
 
 
 # ------------------------------------------------------------ row 9: misspelt keys
-@pytest.mark.parametrize("entry", ["src.train", "src.eval", "src.visualize"])
-def test_cli_misspelt_key_names_the_close_matches(entry, tmp_path, synthetic_data_dir):
-    proc = run_module(
-        entry,
-        "data=synthetic",
-        *([] if entry == "src.train" else ["model=zero_velocity"]),
-        "trainer.max_step=3",
-        data_dir=synthetic_data_dir,
-        log_dir=tmp_path,
-    )
-    line = _error_line(proc)
-    assert line.startswith("error: trainer.max_step: no such key. Did you mean +trainer.max_steps")
-    assert "Keys under trainer: accelerator, " in line
+def test_cli_misspelt_key_names_the_close_matches(tmp_path, synthetic_data_dir):
+    entries = ["src.train", "src.eval", "src.visualize"]
+    procs = run_in_one_process(
+        *([e, "data=synthetic", *([] if e == "src.train" else ["model=zero_velocity"]),
+           "trainer.max_step=3"] for e in entries),
+        data_dir=synthetic_data_dir, log_dir=tmp_path,
+    )  # fmt: skip
+    for entry, proc in zip(entries, procs, strict=True):
+        line = _error_line(proc)
+        assert line.startswith(
+            "error: trainer.max_step: no such key. Did you mean +trainer.max_steps"
+        ), entry
+        assert "Keys under trainer: accelerator, " in line, entry
     assert not list(tmp_path.rglob("checkpoints"))
 
 
@@ -435,10 +435,8 @@ def test_plot_errors_never_writes_over_a_file(tmp_path):
             plot_errors_module.plot_errors([run], target, action="walking")
     assert out.read_bytes() == first and not (tmp_path / "a.png").exists()
     # Without out= each plot goes into its own new run folder, as every entry point's output.
-    for _ in range(2):
-        proc = run_module(
-            "src.plot_errors", f"results=[{run}]", data_dir=tmp_path, log_dir=tmp_path / "logs"
-        )
+    twice = [["src.plot_errors", f"results=[{run}]"]] * 2
+    for proc in run_in_one_process(*twice, data_dir=tmp_path, log_dir=tmp_path / "logs"):
         assert proc.returncode == 0, proc.stderr[-2000:]
     written = sorted((tmp_path / "logs" / "plot_errors").rglob("errors_euler_average.png"))
     assert len(written) == 2 and written[0].parent != written[1].parent
