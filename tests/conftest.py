@@ -81,11 +81,13 @@ print(json.dumps(results))
 """
 
 
-def run_in_one_process(*invocations: list[str], data_dir: Path, log_dir: Path):
+def run_in_one_process(*invocations: list[str], data_dir: Path, log_dir: Path | None):
     """`python -m <module> args...` for each [module, *args], one after the other in one
     process, as run_module would run them: importing torch and Lightning is most of a short
-    run. Returns a CompletedProcess (returncode, stdout, stderr) per invocation."""
-    argvs = [[m, f"paths.log_dir={log_dir}", *args] for m, *args in invocations]
+    run. Returns a CompletedProcess (returncode, stdout, stderr) per invocation. With
+    log_dir=None each invocation gives its own paths.log_dir=."""
+    log = [] if log_dir is None else [f"paths.log_dir={log_dir}"]
+    argvs = [[m, *log, *args] for m, *args in invocations]
     env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "PYTHONUNBUFFERED": "1"}
     proc = subprocess.run(
         [sys.executable, "-c", ONE_PROCESS, json.dumps(argvs)],

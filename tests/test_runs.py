@@ -25,7 +25,7 @@ from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
 from src.lit.resume import describe, restore_run
 from src.lit.run_folders import claim_run_folder
-from tests.conftest import ROOT
+from tests.conftest import ROOT, run_in_one_process
 from tests.test_resume import TINY
 
 GRU = [
@@ -321,39 +321,47 @@ def test_run_folders_are_claimed_atomically(tmp_path):
     )
 
 
-@pytest.mark.parametrize(
-    "refused",
-    [["sampling.eta=2"], ["data.actions=[walkin]"]],
-    ids=["before_the_folder", "when_the_data_loads"],
-)
-def test_refused_config_creates_no_run_folder(refused, tmp_path, synthetic_data_dir):
-    """A config refused before training (an out-of-range value, checked before the folder is
-    made; a misspelt action, found when the data loads) leaves nothing; before, every refused
-    run left a folder with Hydra's files behind."""
-    log_dir = tmp_path / "logs"
-    proc = _cli("src.train", log_dir, synthetic_data_dir, *GRU, "iterations=2", *refused)
+REFUSED = {
+    # A config refused before training (an out-of-range value, checked before the folder is
+    # made; a misspelt action, found when the data loads).
+    "train_before_the_folder": ["src.train", *GRU, "iterations=2", "sampling.eta=2"],
+    "train_when_the_data_loads": ["src.train", *GRU, "iterations=2", "data.actions=[walkin]"],
+    # Found after the folder was claimed: a missing checkpoint, a misspelt action.
+    "eval_checkpoint": ["src.eval", "ckpt_path=/nonexistent/last.ckpt"],
+    "eval_data": ["src.eval", "model=zero_velocity", "data=synthetic", "data.actions=[walkin]"],
+    "visualize": ["src.visualize", "model=zero_velocity", "data=synthetic", "action=walkin"],
+}
+
+
+@pytest.fixture(scope="module")
+def refused_runs(tmp_path_factory, synthetic_data_dir):
+    """Each REFUSED command (one process for all), with what it left in its own log folder."""
+    root = tmp_path_factory.mktemp("refused")
+    procs = run_in_one_process(
+        *([m, f"paths.log_dir={root / name}", *args] for name, (m, *args) in REFUSED.items()),
+        data_dir=synthetic_data_dir, log_dir=None,
+    )  # fmt: skip
+    return {name: (proc, root / name) for name, proc in zip(REFUSED, procs, strict=True)}
+
+
+def _left_nothing(name: str, refused_runs) -> None:
+    proc, log_dir = refused_runs[name]
     assert proc.returncode == 2, proc.stderr[-3000:]
     _error_line(proc)
     assert not log_dir.exists() or not list(log_dir.rglob("*")), list(log_dir.rglob("*"))
 
 
-@pytest.mark.parametrize(
-    ("module", "refused"),
-    [
-        ("src.eval", ["ckpt_path=/nonexistent/last.ckpt"]),
-        ("src.eval", ["model=zero_velocity", "data=synthetic", "data.actions=[walkin]"]),
-        ("src.visualize", ["model=zero_velocity", "data=synthetic", "action=walkin"]),
-    ],
-    ids=["eval_checkpoint", "eval_data", "visualize"],
-)
-def test_refused_eval_or_visualize_creates_no_folder(module, refused, tmp_path, synthetic_data_dir):
-    """As for src.train: a refusal found after the folder was claimed (a missing checkpoint, a
-    misspelt action) used to leave a folder with the log and Hydra's files behind."""
-    log_dir = tmp_path / "logs"
-    proc = _cli(module, log_dir, synthetic_data_dir, *refused)
-    assert proc.returncode == 2, proc.stderr[-3000:]
-    _error_line(proc)
-    assert not log_dir.exists() or not list(log_dir.rglob("*")), list(log_dir.rglob("*"))
+@pytest.mark.parametrize("name", ["train_before_the_folder", "train_when_the_data_loads"])
+def test_refused_config_creates_no_run_folder(name, refused_runs):
+    """Every refused run used to leave a folder with Hydra's files behind."""
+    _left_nothing(name, refused_runs)
+
+
+@pytest.mark.parametrize("name", ["eval_checkpoint", "eval_data", "visualize"])
+def test_refused_eval_or_visualize_creates_no_folder(name, refused_runs):
+    """As for src.train: a refusal found after the folder was claimed used to leave a folder
+    with the log and Hydra's files behind."""
+    _left_nothing(name, refused_runs)
 
 
 def test_a_named_folder_holding_a_run_is_left_untouched(tmp_path, synthetic_data_dir):
