@@ -65,7 +65,7 @@ def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: 
 
 
 ONE_PROCESS = """
-import contextlib, io, json, os, runpy, sys
+import contextlib, io, json, runpy, sys
 from hydra.core.global_hydra import GlobalHydra
 results = []
 for argv in json.loads(sys.argv[1]):

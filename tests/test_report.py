@@ -284,6 +284,25 @@ def test_progress_and_compile_settings_do_not_split_seeds():
     ]
 
 
+def test_the_two_budgets_of_an_experiment_as_composed_are_its_name_not_two_settings(tmp_path):
+    """The 4,000-iteration runs (val_every=500) and the experiment's own 20,000 (val_every=2000)
+    differ in keys the schedule derives from the budget (data.steps_per_epoch); the rows are the
+    experiment's name with a budget column, not `steps_per_epoch=500`."""
+    from omegaconf import OmegaConf
+
+    def run(*overrides):
+        cfg = compose_config("train", ["experiment=li2018_h36m", *overrides], tmp_path)
+        config = OmegaConf.to_container(cfg, resolve=True)
+        del config["hydra"]  # as a run's config.yaml holds it
+        return {"config": config, "seed": 1, "iterations": config["iterations"]}
+
+    groups = group_runs([run("iterations=4000", "val_every=500"), run()])
+    assert [(g.label, g.full_label, g.iterations) for g in groups] == [
+        ("li2018_h36m", "li2018_h36m", 20000),
+        ("li2018_h36m", "li2018_h36m", 4000),
+    ]
+
+
 # --- the page from stored results ------------------------------------------------------------
 
 MS = [80, 160, 320, 400, 560, 1000]
@@ -631,6 +650,7 @@ def test_both_budgets_are_rows_of_the_headline_the_longest_with_the_verdict(tmp_
         run["validations"] = {i: {400: 1.2 - i / 1e5, 1000: 1.8 - i / 1e5} for i in (2000, 4000)}
     for run in long:
         run["config"].update(iterations=20000, val_every=2000)
+        run["iterations"] = 20000
         run["validations"] = {i: {400: 1.2 - i / 1e5, 1000: 1.8 - i / 1e5} for i in (2000, 20000)}
     results = Results(group_runs(short + long))
     head, _, why = headline_table(results, "srnn", TARGETS, None)
@@ -656,6 +676,20 @@ def test_both_budgets_are_rows_of_the_headline_the_longest_with_the_verdict(tmp_
         "1000 ms, published",
     ]
     assert list(lines[0].get_xdata()) == [2000, 20000]
+
+
+def test_a_row_of_unfinished_runs_states_the_iterations_they_trained_not_their_plan():
+    """A report of runs still training (no summary.yaml) gives the iterations of their last
+    checkpoint, the fewest over the seeds: 20,000 planned, 3,000 trained is a 3,000 row."""
+    runs = [offset_run(0.01) for _ in range(2)]
+    for seed, (run, trained) in enumerate(zip(runs, (3000, 3500), strict=True), start=1):
+        run["config"].update(iterations=20000, val_every=2000, seed=seed)
+        run.update(seed=seed, iterations=trained, finished=False)
+    (group,) = group_runs(runs)
+    head, _, _ = headline_table(Results([group]), "srnn", TARGETS, None)
+    assert [r[2] for r in cells(head) if r[3] == "ours, best"] == ["3,000"]
+    runs[0]["iterations"] = runs[1]["iterations"] = 20000  # finished: the plan, as trained
+    assert group_runs(runs)[0].iterations == 20000
 
 
 @pytest.mark.slow

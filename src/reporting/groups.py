@@ -18,7 +18,8 @@ IGNORED_KEYS = "seed data.seed ckpt_path resume checkpoint_every media_every pro
 IGNORED_KEYS = set((IGNORED_KEYS + "task_name").split())
 IGNORED_PREFIXES = "paths. trainer. compile. hydra. data.data_dir data.archive_dir data.archive "
 IGNORED_PREFIXES = tuple((IGNORED_PREFIXES + "data.num_workers data.eval_batch_size").split())
-BUDGET_KEYS = {"iterations", "val_every"}  # the budget has a column of its own
+# The budget has a column of its own; data.steps_per_epoch is val_every's copy (conf/data).
+BUDGET_KEYS = {"iterations", "val_every", "data.steps_per_epoch"}
 # Settings named in words in a label when on (the paper's behaviour is off); any other setting
 # that tells two groups of one experiment apart is shown as `leaf=value`.
 SETTING_NAMES = {
@@ -154,7 +155,11 @@ def group_runs(runs: list[dict]) -> list[Group]:
         }
         kept, left_out = _keep_one_per_seed(members)
         kept.sort(key=lambda r: _seed_order(seed_of(r)))
-        iterations = json.loads(mine.get("iterations", "null")) or kept[-1].get("iterations") or 0
+        # What the seeds trained (the fewest): runs still training are not their plan's length.
+        planned = json.loads(mine.get("iterations", "null"))
+        iterations = min(
+            (n for n in (planned, *(r.get("iterations") for r in kept)) if n), default=0
+        )
         label = _short_label(str(run_name), settings)
         group = Group(label, str(run_name), str(dataset), int(iterations), kept, settings)
         group.left_out, group.ident = left_out, mine
