@@ -348,10 +348,9 @@ def test_the_segments_of_a_resumed_run_are_named_as_such_and_a_copy_as_a_copy():
             "seed 3: `o/copy/t1` has the same configuration and seed as `o/s3/t3`, which was "
             "kept (it trained 4,000 iterations, that one 1,000); they count as one seed"
         )
-        assert lines[1:] == [
-            f"seed 3: `o/s3/{t}` ({n} iterations) is an earlier segment of the resumed run "
-            "`o/s3/t3` (4,000), which was kept"
-            for t, n in (("t1", "533"), ("t2", "2,839"))
+        assert lines[1:] == [  # one line for the resumed run, its segments oldest first
+            "seed 3: the resumed run `o/s3/t3` (4,000 iterations) was kept; it continues 2 "
+            "earlier segment(s) of itself: `t1` (533), `t2` (2,839)"
         ]
     # A copy that was itself resumed from another folder is still a copy.
     copy_["config"]["ckpt_path"] = "/o/elsewhere/checkpoints/last.ckpt"

@@ -153,7 +153,7 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     make_run(runs / "t2", summary=summary, ckpt_path=str(first / "checkpoints" / "last.ckpt"))
     page = report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", records=records)
     # The stopped segment is named as the resumed run's, not as a copy of it.
-    assert "`li2018_h36m/t1` (4,000 iterations) is an earlier segment of the resumed run" in page
+    assert "continues 1 earlier segment(s) of itself: `t1` (4,000)" in page
     assert "same configuration" not in page
     (record,) = records.glob("*.json")
     data = json.loads(record.read_text())

@@ -96,18 +96,21 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
                 break
             before = by_folder[folder]
         earlier = [m for m in members if m.get("folder") in segments]
+        earlier.sort(key=lambda m: m.get("iterations") or 0)  # oldest first
         if earlier and "validations" in run:  # each segment's folder logged its own part
             curve = {
                 i: e for part in [*earlier, run] for i, e in (part.get("validations") or {}).items()
             }
             run["validations"] = dict(sorted(curve.items()))
         path, n = f"`{run.get('path')}`", lambda r: f"{r.get('iterations'):,}"
+        if earlier:  # one line per resumed run: a long run has a segment per session
+            parts = ", ".join(f"`{Path(m['folder']).name}` ({n(m)})" for m in earlier)
+            lines.append(
+                f"seed {seed}: the resumed run {path} ({n(run)} iterations) was kept; it "
+                f"continues {len(earlier)} earlier segment(s) of itself: {parts}"
+            )
         for other in (m for m in members if seed_of(m) == seed and m is not run):
             if other.get("folder") in segments:
-                lines.append(
-                    f"seed {seed}: `{other.get('path')}` ({n(other)} iterations) is an earlier "
-                    f"segment of the resumed run {path} ({n(run)}), which was kept"
-                )
                 continue
             if rank(run)[0] != rank(other)[0]:
                 why = f"it trained {n(run)} iterations, that one {n(other)}"

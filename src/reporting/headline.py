@@ -178,7 +178,9 @@ def figures(results: Results, protocol: str):
                 if ms in same:
                     ends = dict.fromkeys((min(curve), max(curve)), same[ms])
                     lines.append(Curve(f"{ms} ms, published", ends, color=c, style="--"))
-            validation.append((f"{name} iterations, mean over {len(group.runs)} seeds", lines))
+            n = len(group.runs)
+            seeds = f"mean over {n} seeds" if n > 1 else "one seed"
+            validation.append((f"{name} iterations, {seeds}", lines))
     where = PROTOCOLS.get(protocol, protocol)
     first = line_panels([(f"{d}: {where}", c) for d, c in horizon.items()]) if horizon else None
     return first, line_panels(validation, "iterations") if validation else None
