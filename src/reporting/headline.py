@@ -156,9 +156,10 @@ def readme_block(results, protocol, commit, targets, figure=None, page="docs/res
 
 def figures(results: Results, protocol: str):
     """(error against horizon, a panel per dataset; validation error at 400 and 1000 ms against
-    iteration, a panel per experiment), the published values dashed."""
+    iteration, a panel per experiment with each budget's curves, longest solid), the published
+    values dashed."""
     horizon: dict[str, list[Curve]] = {}
-    validation = []
+    budgets: dict[tuple, list] = {}
     for k, group in enumerate(headline_groups(results)):
         name, panel = f"{group.label}, {group.iterations:,}", horizon.setdefault(group.dataset, [])
         for s, style in (("best", "-"), ("last", ":")):
@@ -172,15 +173,22 @@ def figures(results: Results, protocol: str):
             # The validations average over every evaluated action: the published value too.
             ref, evaluated = results.reference(group)[0], results.actions(group, judged=False)
             same = same_set_average(ref.published, evaluated, HORIZONS) if ref else {}
-            lines = []
-            for c, ms in enumerate((400, 1000)):
-                lines.append(Curve(f"{ms} ms", {i: e[ms] for i, e in curve.items()}, color=c))
-                if ms in same:
-                    ends = dict.fromkeys((min(curve), max(curve)), same[ms])
-                    lines.append(Curve(f"{ms} ms, published", ends, color=c, style="--"))
+            budgets.setdefault((group.label, group.dataset), []).append((group, curve, same))
+    validation = []
+    for (label, dataset), runs in budgets.items():  # longest budget first (group order)
+        lines, steps = [], [i for _, curve, _ in runs for i in curve]
+        for b, (group, curve, _) in enumerate(runs):
             n = len(group.runs)
-            seeds = f"mean over {n} seeds" if n > 1 else "one seed"
-            validation.append((f"{name} iterations, {seeds}", lines))
+            seeds = f"mean of {n} seeds" if n > 1 else "one seed"
+            for c, ms in enumerate((400, 1000)):
+                label_ = f"{ms} ms, {group.iterations:,} iterations, {seeds}"
+                values = {i: e[ms] for i, e in curve.items()}
+                lines.append(Curve(label_, values, color=c, style=":" if b else "-"))
+        for c, ms in enumerate((400, 1000)):
+            if ms in (same := runs[0][2]):
+                ends = dict.fromkeys((min(steps), max(steps)), same[ms])
+                lines.append(Curve(f"{ms} ms, published", ends, color=c, style="--"))
+        validation.append((f"{label} ({dataset})", lines))
     where = PROTOCOLS.get(protocol, protocol)
     first = line_panels([(f"{d}: {where}", c) for d, c in horizon.items()]) if horizon else None
     return first, line_panels(validation, "iterations") if validation else None
