@@ -693,6 +693,8 @@ def test_a_row_of_unfinished_runs_states_the_iterations_they_trained_not_their_p
     (group,) = group_runs(runs)
     head, _, _ = headline_table(Results([group]), "srnn", TARGETS, None)
     assert [r[2] for r in cells(head) if r[3] == "ours, best"] == ["3,000"]
+    # Provenance gives each seed's own count.
+    assert [r[4] for r in cells(provenance_table(Results([group])))] == ["3,000", "3,500"]
     runs[0]["iterations"] = runs[1]["iterations"] = 20000  # finished: the plan, as trained
     assert group_runs(runs)[0].iterations == 20000
 

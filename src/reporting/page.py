@@ -46,7 +46,7 @@ def provenance_table(results: Results) -> str:
             if group.kind == "trained":
                 row[:3] = group.label, str(r["seed"]), f"`{r['path']}`"
                 row[4:] = (
-                    f"{group.iterations:,}",
+                    f"{r.get('iterations') or group.iterations:,}",  # this seed's own
                     hl.span([r["iterations_of"]["best"]]),
                     _wall_time(r),
                 )
