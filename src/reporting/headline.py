@@ -175,20 +175,21 @@ def figures(results: Results, protocol: str):
             same = same_set_average(ref.published, evaluated, HORIZONS) if ref else {}
             budgets.setdefault((group.label, group.dataset), []).append((group, curve, same))
     validation = []
-    for (label, dataset), runs in budgets.items():  # longest budget first (group order)
-        lines, steps = [], [i for _, curve, _ in runs for i in curve]
-        for b, (group, curve, _) in enumerate(runs):
+    for (experiment, dataset), curves in budgets.items():  # longest budget first (group order)
+        lines, steps = [], [i for _, curve, _ in curves for i in curve]
+        for b, (group, curve, _) in enumerate(curves):
             n = len(group.runs)
             seeds = f"mean of {n} seeds" if n > 1 else "one seed"
             for c, ms in enumerate((400, 1000)):
-                label_ = f"{ms} ms, {group.iterations:,} iterations, {seeds}"
+                label = f"{ms} ms, {group.iterations:,} iterations, {seeds}"
                 values = {i: e[ms] for i, e in curve.items()}
-                lines.append(Curve(label_, values, color=c, style=":" if b else "-"))
+                lines.append(Curve(label, values, color=c, style=":" if b else "-"))
+        same = curves[0][2]  # the same evaluated actions in each budget
         for c, ms in enumerate((400, 1000)):
-            if ms in (same := runs[0][2]):
+            if ms in same:
                 ends = dict.fromkeys((min(steps), max(steps)), same[ms])
                 lines.append(Curve(f"{ms} ms, published", ends, color=c, style="--"))
-        validation.append((f"{label} ({dataset})", lines))
+        validation.append((f"{experiment} ({dataset})", lines))
     where = PROTOCOLS.get(protocol, protocol)
     first = line_panels([(f"{d}: {where}", c) for d, c in horizon.items()]) if horizon else None
     return first, line_panels(validation, "iterations") if validation else None
