@@ -129,3 +129,25 @@ def test_a_record_without_a_curve_reads_as_none(tmp_path, curve):
     write_record(run, tmp_path, "abc", "2026-01-01")
     (again,) = read_records(tmp_path, ["srnn"])
     assert not again.get("validations")
+
+
+def test_the_curve_of_a_row_with_an_untrained_action_is_compared_over_the_same_actions():
+    """The validations average every evaluated action, CMU washwindow too, though the verdict
+    judges the actions with training files: the published value beside the curve is the one
+    over the curve's own actions, and the text says which (it gave the judged set's)."""
+    from src.data.layout import cmu_files
+    from tests.test_report import offset_run
+
+    run = with_curve(offset_run(0.08, "li2018_cmu", "cmu", absent={}), {2000: 1.6, 4000: 1.5})
+    run["train_missing_files"] = [e.relpath for e in cmu_files(["washwindow"], "train")]
+    published, _ = published_for({"paper": "li2018", "method": "conv_s2s"}, "cmu")
+    evaluated = [a for a in published if a != "average"]
+    every = same_set_average(published, evaluated, [1000])[1000]
+    judged = same_set_average(published, [a for a in evaluated if a != "washwindow"], [1000])
+    assert f"{every:.2f}" != f"{judged[1000]:.2f}"  # else the test could not tell them apart
+    text = build_page(Results(group_runs([run])), ["srnn"], "cmd", None, "abc", {"cmu": 0.05}, None)
+    assert (
+        "li2018_cmu at each validation (iterations 2,000 to 4,000, every 2,000; all 8 "
+        "actions, washwindow (no training files) too): " in text
+    )
+    assert f"1.60 1.50 at 1000 ms (published {every:.2f})." in text
