@@ -177,9 +177,9 @@ class Results:
     def references(self, group: Group) -> list[Reference]:
         return self._refs[group]
 
-    def same_set(self, group: Group, reference: Reference) -> dict[int, float]:
-        """The reference's average over the judged actions."""
-        return same_set_average(reference.published, self.actions(group), HORIZONS)
+    def same_set(self, group: Group, reference: Reference, judged=True) -> dict[int, float]:
+        """The reference's average over the (judged) evaluated actions."""
+        return same_set_average(reference.published, self.actions(group, judged), HORIZONS)
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
         """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""

@@ -10,7 +10,7 @@ import src.reporting.frame as fr
 from src.plots import Curve, line_panels
 from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTIONS, Results
 from src.reporting.published import REFERENCES, known_slips
-from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
+from src.reporting.tables import AVERAGE, fmt, markdown
 
 SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
 COLS = [f"{ms} ms" for ms in HORIZONS]
@@ -171,8 +171,8 @@ def figures(results: Results, protocol: str):
                 panel.append(Curve(ref.name, same, None, k, "-." if j else "--"))
         if len(curve := results.validation_means(group, protocol)) > 1:
             # The validations average over every evaluated action: the published value too.
-            ref, evaluated = results.reference(group)[0], results.actions(group, judged=False)
-            same = same_set_average(ref.published, evaluated, HORIZONS) if ref else {}
+            ref = results.reference(group)[0]
+            same = results.same_set(group, ref, judged=False) if ref else {}
             budgets.setdefault((group.label, group.dataset), []).append((group, curve, same))
     validation = []
     for (experiment, dataset), curves in budgets.items():  # longest budget first (group order)
