@@ -19,6 +19,7 @@ from src.data.normalization import Normalizer
 from src.data.reader import read_motion_file
 from src.data.synthetic import H36M_USED_COLUMNS, SyntheticDataModule, write_synthetic_h36m
 from src.data.windows import cmu_test_starts, srnn_h36m_starts
+from tests import objects
 
 SMALL = dict(batch_size=4, steps_per_epoch=3, eval_batch_size=5)
 
@@ -385,3 +386,24 @@ def test_lightning_epochs_differ_reruns_repeat_and_resume(tmp_path):
     _fit(tmp_path, 1, save_to=ckpt)
     resumed = _fit(tmp_path, 2, ckpt_path=ckpt)
     assert list(resumed) == [1] and torch.equal(resumed[1], run1[1])
+
+
+def test_the_reference_angle_wrap_of_the_config_reaches_the_statistics(tmp_path):
+    """data.reference_angle_wrap=true gives Li et al.'s statistics (protocol §2.3): the root
+    translation, as long as the real one, wrapped; every joint column as without it."""
+    SyntheticDataModule(tmp_path).prepare_data()
+    root = tmp_path / "synthetic"
+    for path in root.glob("h3.6m/dataset/S*/*.txt"):
+        frames = read_motion_file(path, 99)
+        frames[:, 0] += np.linspace(0.0, 12.0, len(frames))  # walks 12 units, beyond 2pi
+        np.savetxt(path, frames, fmt="%.7f", delimiter=",")
+    small = ["data.actions=[walking,eating,smoking]", "data.train_subjects=[1]"]
+    built = {}
+    for wrap in (True, False):
+        overrides = ["data=h36m", f"data.reference_angle_wrap={wrap}", *small]
+        cfg = objects.compose(overrides, tmp_path / f"out{wrap}", root)
+        built[wrap] = objects.datamodule(cfg.data).normalizer
+    assert bool(built[True].wrap) and not bool(built[False].wrap)
+    assert torch.equal(built[True].dim_used, built[False].dim_used)
+    assert built[True].mean[0] < built[False].mean[0] - 1.0  # the long steps come back short
+    assert torch.equal(built[True].mean[3:], built[False].mean[3:])

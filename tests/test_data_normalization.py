@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from src.data.errors import DataError
-from src.data.normalization import Normalizer
+from src.data.normalization import Normalizer, wrap_angles
+from src.metrics.rotations import expmap_to_rotmat
 
 
 def _frames(n: int = 200, seed: int = 0) -> np.ndarray:
@@ -106,7 +107,53 @@ def test_state_dict_round_trip_through_empty():
     assert empty.mean.shape == empty.std.shape == empty.used.shape == (6,)
     empty.load_state_dict(norm.state_dict())
     assert empty.pose_dim == 3 and torch.equal(empty.mean, norm.mean)
-    assert sorted(norm.state_dict()) == ["mean", "std", "used"]
+    assert sorted(norm.state_dict()) == ["mean", "std", "used", "wrap"]
+
+
+def test_the_wrap_flag_travels_in_the_state_and_a_state_without_it_is_not_wrapped():
+    wrapped = Normalizer.from_sequences([_frames()], wrap=True)
+    empty = Normalizer.empty(6)
+    empty.load_state_dict(wrapped.state_dict())
+    assert bool(empty.wrap)
+    older = {k: v for k, v in wrapped.state_dict().items() if k != "wrap"}  # before the switch
+    empty.load_state_dict(older)
+    assert not bool(empty.wrap)
+
+
+# ---- Li et al.'s H3.6M angle wrap (protocol §2.3) ----------------------------------------------
+
+
+def _triples() -> torch.Tensor:
+    """One frame of 3 triples: root translation of norm 10, a joint turned 7 rad, one 1 rad."""
+    axis = torch.tensor([[1.0, 2.0, 2.0], [0.0, 0.6, 0.8], [1.0, 0.0, 0.0]])
+    axis = axis / axis.norm(dim=-1, keepdim=True)
+    return (axis * torch.tensor([[10.0], [7.0], [1.0]], dtype=torch.float64)).flatten()
+
+
+def test_the_wrap_keeps_every_rotation_and_moves_a_translation_longer_than_2_pi():
+    x = _triples()
+    y = wrap_angles(x)
+    norms = y.view(3, 3).norm(dim=-1)
+    torch.testing.assert_close(
+        norms, torch.tensor([10 - 2 * torch.pi, 7 - 2 * torch.pi, 1.0]).double()
+    )
+    # Same direction, and the joint turned 7 rad is the same rotation as turned 7 - 2pi.
+    torch.testing.assert_close(y.view(3, 3)[0] / norms[0], x.view(3, 3)[0] / 10)
+    torch.testing.assert_close(expmap_to_rotmat(y.view(3, 3)[1]), expmap_to_rotmat(x.view(3, 3)[1]))
+    assert torch.equal(y[6:], x[6:])  # below 2pi: unchanged to the bit
+    assert torch.equal(wrap_angles(torch.zeros(6)), torch.zeros(6))  # no division by 0
+
+
+def test_with_the_wrap_the_statistics_and_the_normalised_frames_are_those_of_wrapped_frames():
+    rng = np.random.default_rng(0)
+    frames = rng.normal(0.0, 4.0, (100, 9))  # many triples longer than 2pi
+    wrapped = Normalizer.from_sequences([frames], wrap=True)
+    plain_of_wrapped = Normalizer.from_sequences([wrap_angles(torch.from_numpy(frames)).numpy()])
+    torch.testing.assert_close(wrapped.mean, plain_of_wrapped.mean)
+    torch.testing.assert_close(wrapped.std, plain_of_wrapped.std)
+    x = torch.from_numpy(frames[:5])
+    torch.testing.assert_close(wrapped.normalize(x), plain_of_wrapped.normalize(wrap_angles(x)))
+    assert not torch.allclose(wrapped.mean, Normalizer.from_sequences([frames]).mean)
 
 
 def test_follows_module_device_and_dtype_moves():

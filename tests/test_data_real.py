@@ -78,6 +78,19 @@ def test_h36m_54_used_dims_are_the_protocol_columns(h36m):
     torch.testing.assert_close(h36m.normalizer.std[:6], expected, rtol=0.1, atol=0)
 
 
+def test_h36m_reference_angle_wrap_changes_only_the_root_translation(h36m, data_dir):
+    """Protocol §2.3 (verified there): Li et al.'s wrap leaves the 54 used columns and every
+    joint alone (no joint turns beyond 2pi) and shortens the root translation."""
+    dm = H36MDataModule(data_dir, allow_partial=True, reference_angle_wrap=True)
+    dm.prepare_data()
+    dm.setup("fit")
+    wrapped, plain = dm.normalizer, h36m.normalizer
+    assert torch.equal(wrapped.dim_used, plain.dim_used)
+    changed = (wrapped.mean != plain.mean) | (wrapped.std != plain.std)
+    assert changed.nonzero().flatten().tolist() == [0, 1, 2]
+    assert (wrapped.std[:3] < plain.std[:3] / 2).all()  # 3.3 2.2 6.7 -> 1.5 0.8 2.0
+
+
 def test_h36m_raw_file_and_downsampling(h36m, data_dir):
     raw = read_motion_file(data_dir / "h3.6m/dataset/S5/walking_1.txt", 99)
     assert raw.shape == (3000, 99)  # protocol §1.1

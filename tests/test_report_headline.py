@@ -301,6 +301,19 @@ def test_settings_that_tell_rows_apart_go_to_a_footnote():
     assert "² li2018_h36m, reference-code switches: adversarial.reference_fake_slot=True." in notes
 
 
+def test_a_run_from_before_a_switch_existed_is_a_seed_of_the_runs_with_it_off():
+    older, off, on = seeded(0.0, 1), seeded(0.0, 2), seeded(0.0, 3)
+    off["config"]["data"]["reference_angle_wrap"] = False
+    on["config"]["data"]["reference_angle_wrap"] = True
+    _, head, notes, _ = head_of([older, off, on])
+    rows = [r for r in cells(head) if r[3] == "ours, best"]
+    assert [r[:2] + [r[4]] for r in rows] == [
+        ["li2018_h36m¹", "h36m", "2"],
+        ["li2018_h36m, reference-code switches²", "h36m", "1"],
+    ]
+    assert "¹ li2018_h36m: data.reference_angle_wrap=False." in notes
+
+
 # --- identical runs are one seed --------------------------------------------------------------
 
 

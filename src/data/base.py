@@ -67,6 +67,7 @@ class MotionDataModule(L.LightningDataModule):
     spec: DatasetSpec
     dataset_name: str  # spec.name; a class attribute, read from the class by load_trained
     conv_padding: str  # "same" on H3.6M, "valid" on CMU (protocol §6.7)
+    angle_wrap: bool = False  # [L]'s H3.6M wrap before the statistics (§2.3); H3.6M's option
     # Milliseconds per downsampled frame, for the horizon labels: 40 ms (25 fps) on H3.6M and, as
     # the reference's tables have it, on CMU, most likely 30 Hz (protocol §1.5, [L] issue #4).
     frame_ms: int = 40
@@ -201,7 +202,7 @@ class MotionDataModule(L.LightningDataModule):
 
         # Statistics from the raw 50 Hz training frames, before downsampling (protocol §2.1).
         normalizer = self._given_normalizer or Normalizer.from_sequences(
-            [raw[e.relpath] for e in train]
+            [raw[e.relpath] for e in train], wrap=self.angle_wrap
         )
         seqs = [normalizer.normalize(torch.from_numpy(raw[e.relpath][::2].copy())) for e in train]
         self._train_lengths = [len(s) for s in seqs]

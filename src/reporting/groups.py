@@ -21,10 +21,12 @@ IGNORED_PREFIXES = tuple((IGNORED_PREFIXES + "data.num_workers data.eval_batch_s
 # The budget has a column of its own; data.steps_per_epoch is val_every's copy (conf/data).
 BUDGET_KEYS = {"iterations", "val_every", "data.steps_per_epoch"}
 # Settings named in words in a label when on (the paper's behaviour is off); any other setting
-# that tells two groups of one experiment apart is shown as `leaf=value`.
+# that tells two groups of one experiment apart is shown as `leaf=value`. Off, a switch is what
+# a run from before it existed did: the same configuration.
 SETTING_NAMES = {
     "model.net.reference_eta_offset": "reference-code switches",
     "adversarial.reference_fake_slot": "reference-code switches",
+    "data.reference_angle_wrap": "reference-code switches",
 }
 ABLATIONS = "no_long_term kernel_4x4 kernel_7x2 C5 C5_no_adv C10 C10_no_adv C20 C20_no_adv"
 ABLATIONS = [f"li2018_h36m_{n}" for n in ABLATIONS.split()]
@@ -45,7 +47,9 @@ def identity(config: dict) -> dict[str, str]:
     return {
         k: v
         for k, v in _flatten(config).items()
-        if k not in IGNORED_KEYS and (not k.startswith(IGNORED_PREFIXES) or k.startswith(COMPUTES))
+        if k not in IGNORED_KEYS
+        and (not k.startswith(IGNORED_PREFIXES) or k.startswith(COMPUTES))
+        and not (k in SETTING_NAMES and v == "false")
     }
 
 
@@ -151,10 +155,11 @@ def group_runs(runs: list[dict]) -> list[Group]:
     for (run_name, dataset, ident), members in by_key.items():
         siblings = [dict(k[2]) for k in by_key if k[:2] == (run_name, dataset)]
         mine = dict(ident)
+        value = lambda s, k: s.get(k, "false" if k in SETTING_NAMES else "null")  # noqa: E731
         settings = {
-            k: json.loads(mine.get(k, "null"))
+            k: json.loads(value(mine, k))
             for k in sorted({k for s in siblings for k in s} - BUDGET_KEYS)
-            if len({s.get(k, "null") for s in siblings}) > 1
+            if len({value(s, k) for s in siblings}) > 1
         }
         kept, left_out = _keep_one_per_seed(members)
         kept.sort(key=lambda r: _seed_order(seed_of(r)))
