@@ -140,6 +140,11 @@ class Results:
         gone = self.untrained.get(group.dataset, set()) if judged else set()
         return [a for a in self.evaluated.get(self._g[group], []) if a not in gone]
 
+    def untrained_actions(self, group: Group) -> list[str]:
+        """The evaluated actions this copy has no training file of (not judged)."""
+        gone = self.untrained.get(group.dataset, set())
+        return [a for a in self.actions(group, judged=False) if a in gone]
+
     def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
         """Each seed's average over the (judged) actions, by horizon; None where there is none."""
         key = (self._g[group], protocol, checkpoint, metric)

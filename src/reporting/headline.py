@@ -75,7 +75,7 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
         if settings := ", ".join(f"{a}={v}" for a, v in group.settings.items()):
             label += mark(f"{label}: {settings}.")
         everything, judged_actions = results.actions(group, False), results.actions(group)
-        if untrained := [a for a in everything if a not in judged_actions]:
+        if untrained := results.untrained_actions(group):
             label += mark(
                 f"{group.label}: {', '.join(untrained)} has no training files in this copy: left "
                 f"out of the average the verdict judges ({len(judged_actions)} actions, the "

@@ -146,14 +146,14 @@ def _validation_text(results: Results, group, protocol: str, judgement) -> str:
         return ""
     # A validation averages every evaluated action, those without training files too, so the
     # published value beside it is the one over the same actions, not the judged set's.
-    evaluated, judged = results.actions(group, judged=False), results.actions(group)
     same, steps = results.same_set(group, judgement.reference, judged=False), list(means)
     when = f"iterations {steps[0]:,} to {steps[-1]:,}" if steps[1:] else f"iteration {steps[0]:,}"
     if len(gaps := {b - a for a, b in zip(steps, steps[1:], strict=False)}) == 1:
         when += f", every {gaps.pop():,}"
     if len(group.runs) > 1:
         when += f"; mean over {len(group.runs)} seeds"
-    if untrained := [a for a in evaluated if a not in judged]:
+    if untrained := results.untrained_actions(group):
+        evaluated = results.actions(group, judged=False)
         when += f"; all {len(evaluated)} actions, {', '.join(untrained)} (no training files) too"
     horizons = sorted({ms for hs in judgement.missed.values() for ms in hs})
     at = [
