@@ -220,8 +220,11 @@ class Curve(NamedTuple):
     style: str = "-"
 
 
-def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle error (rad)"):
-    """A panel per (title, curves), side by side, as Li et al. (2018) Figure 4."""
+def line_panels(
+    panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle error (rad)", from_zero=True
+):
+    """A panel per (title, curves), side by side, as Li et al. (2018) Figure 4. `from_zero=False`
+    fits the y axis to the curves: a change of 0.1 rad over training is lost on an axis from 0."""
     if not panels or not all(curves for _, curves in panels):
         raise ValueError("line_panels: a panel without curves")
     fig = Figure(figsize=(5.0 * len(panels) + 1.0, 4.0), dpi=100)
@@ -239,7 +242,7 @@ def line_panels(panels, xlabel="prediction horizon (ms)", ylabel="Euler-angle er
                 ax.fill_between(xs, ys - std, ys + std, color=color, alpha=0.15, lw=0)
         if len(ticks) <= 12:
             ax.set_xticks(sorted(ticks))
-        ax.set(xlabel=xlabel, ylabel=ylabel, ylim=(0, None))
+        ax.set(xlabel=xlabel, ylabel=ylabel, ylim=(0, None) if from_zero else (None, None))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         if title:  # a long protocol name would run past a 5-inch panel and be cut off

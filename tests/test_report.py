@@ -681,6 +681,11 @@ def test_both_budgets_are_rows_of_the_headline_the_longest_with_the_verdict(tmp_
     evaluated = [a for a in ACTIONS if a not in ABSENT]  # validations average these
     published = same_set_average(H36M, evaluated, [400, 1000])
     assert [line.get_ydata()[0] for line in lines[4:]] == [published[400], published[1000]]
+    # The y axis fits the curves: a rise of 0.1 rad over training must show, not lie flat
+    # near the top of an axis from 0 (the horizon figure keeps its axis from 0).
+    bottom, top = validation.axes[0].get_ylim()
+    lowest = min(min(line.get_ydata()) for line in lines)
+    assert 0.5 * lowest < bottom < lowest and top - bottom < 1.5
 
 
 def test_a_row_of_unfinished_runs_states_the_iterations_they_trained_not_their_plan():

@@ -200,6 +200,7 @@ def paragraphs(text: str) -> list[str]:
 def test_headline_first_and_readme_block_short_on_the_leads_runs(tmp_path):
     results = Results(group_runs(lead_like_runs()))
     horizon, _ = figures(results, "srnn")
+    assert all(ax.get_ylim()[0] == 0 for ax in horizon.axes)  # errors against horizon from 0
     page = build_page(
         results,
         ["srnn", "random"],

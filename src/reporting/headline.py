@@ -192,4 +192,4 @@ def figures(results: Results, protocol: str):
         validation.append((f"{experiment} ({dataset})", lines))
     where = PROTOCOLS.get(protocol, protocol)
     first = line_panels([(f"{d}: {where}", c) for d, c in horizon.items()]) if horizon else None
-    return first, line_panels(validation, "iterations") if validation else None
+    return first, line_panels(validation, "iterations", from_zero=False) if validation else None
