@@ -97,7 +97,9 @@ def train(cfg: DictConfig) -> float:
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
         cfg.trainer,
-        max_epochs=-1,  # the module stops at `iterations`
+        # An epoch is `val_every` iterations (a multiple: config.py); the module also stops at
+        # `iterations`. A finite count lets the progress bar say "Epoch 3/9", not "Epoch 3/-2".
+        max_epochs=cfg.iterations // cfg.val_every,
         logger=logger,
         callbacks=[timer, checkpoints, last, LearningRateMonitor("step"), *callbacks],
     )

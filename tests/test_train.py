@@ -160,7 +160,7 @@ def test_without_regulariser_one_optimiser(train_cfg):
 
 
 @pytest.mark.slow
-def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
+def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path, capsys):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from src.eval import evaluate
@@ -170,6 +170,8 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path):
 
     cfg = train_cfg("model=conv_s2s", "trainer.log_every_n_steps=1", "sampling=linear")
     score = train(cfg)
+    # The bar counts validation periods (val_every=2 of 4 iterations), not "Epoch 1/-2".
+    assert "Epoch 1/1 " in capsys.readouterr().out
     out = tmp_path / "run"
     assert score == score  # not NaN
     ckpts = sorted(p.name for p in (out / "checkpoints").glob("*.ckpt"))
