@@ -299,6 +299,14 @@ def test_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, synthetic_d
     assert again.returncode == 2
     assert "nothing to resume" in _error_line(again) and "iterations=N" in _error_line(again)
     assert _runs(tmp_path / "a") == [run_a]
+    # As that error says, iterations=N trains it longer: on to N, one more validation period.
+    longer = _cli(
+        "src.train", tmp_path / "a", synthetic_data_dir, f"resume={run_a}", "iterations=8"
+    )
+    assert longer.returncode == 0, longer.stderr[-3000:]
+    (run_d,) = [r for r in _runs(tmp_path / "a") if r != run_a]
+    sum_d = OmegaConf.to_container(OmegaConf.load(run_d / "summary.yaml"))
+    assert (sum_d["resumed_at"], sum_d["iterations"]) == (6, 8)
 
 
 # ------------------------------------------------------------------ run folders
