@@ -319,6 +319,16 @@ def test_result_table_prints_same_set_and_as_printed_averages():
     assert float(printed80["published"]) == published[AVERAGE][80]
     assert "over all 15 actions" in printed80["note"]  # the paper's, not our 2
 
+    # A horizon the paper has no number at (560 ms): '-', as the footnote says, in every row.
+    horizons = sorted([*LI_MS, 560])
+    values = {a: {ms: 1.0 for ms in horizons} for a in ("walking", "eating")}
+    wider = make_table(
+        actions=["walking", "eating"], horizons_ms=horizons, values=values, absent={},
+        published=published, published_label="li2018 conv_s2s",
+    )  # fmt: skip
+    rows = {line.split(" | ")[0]: line.split(" | ")[1:] for line in md_rows(table_markdown(wider))}
+    assert rows["walking"][4] == "1.00 (-)" and rows["published average, as printed"][4] == "-"
+
 
 # --- the long table: mean ± std over seeds ---------------------------------------------------
 

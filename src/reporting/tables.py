@@ -125,7 +125,8 @@ def table_markdown(table: dict) -> str:
     mixed = ours + " (" + paper + ")" if has_published else ours
     cells = mixed.where(~frame.value.isin(["absent", ""]), ours.where(ours != "", paper))
     frame = frame.assign(cell=cells, action=frame.action.map(lambda a: names.get(a, a)))
-    wide = frame.pivot(index="action", columns="ms", values="cell")
+    # The paper's own average has no cell where it printed no number (560 ms): '-'.
+    wide = frame.pivot(index="action", columns="ms", values="cell").fillna("-")
     wide = wide.reindex(list(dict.fromkeys(frame.action))).rename(columns=lambda ms: f"{ms} ms")
     lines = [f"**{table['title']}**: {table['metric']} ({table['unit']})", ""]
     lines += [markdown(wide.reset_index()), ""]
