@@ -128,7 +128,7 @@ def table_markdown(table: dict) -> str:
     # The paper's own average has no cell where it printed no number (560 ms): '-'.
     wide = frame.pivot(index="action", columns="ms", values="cell").fillna("-")
     wide = wide.reindex(list(dict.fromkeys(frame.action))).rename(columns=lambda ms: f"{ms} ms")
-    lines = [f"**{table['title']}**: {table['metric']} ({table['unit']})", ""]
+    lines = [f"**{table['title']}** ({table['unit']})", ""]
     lines += [markdown(wide.reset_index()), ""]
     if has_published:
         lines.append(
