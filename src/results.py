@@ -22,7 +22,7 @@ def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
     published, label = published_for(model_cfg.get("published"), dataset)
     where = f"{model_cfg['name']} on {dataset} ({dm.eval_protocol} protocol, "
     where += f"{len(dm.eval_windows)} windows)"
-    mm = "mm" if dm.dataset_name == "h36m" else "units"
+    mm = "mm" if dm.dataset_name == "h36m" else "skeleton units"
     tables = []
     for metric, title, unit in (
         ("euler", "Euler-angle error", "rad"),
