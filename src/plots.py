@@ -244,7 +244,7 @@ def line_panels(
             ax.set_xticks(sorted(ticks))
         ax.set(xlabel=xlabel, ylabel=ylabel, ylim=(0, None) if from_zero else (None, None))
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=7, handlelength=4)  # long enough to show a dashed line as dashed
         if title:  # a long protocol name would run past a 5-inch panel and be cut off
             ax.set_title(textwrap.fill(title, 48), fontsize=10)
     fig.tight_layout()
