@@ -19,7 +19,6 @@ import pandas as pd
 DATA = resources.files("src.reporting")
 REFERENCES = json.loads(DATA.joinpath("references.json").read_text())
 PAPERS = REFERENCES["papers"]
-KNOWN_SLIPS = {tuple(k.split(" ")): v for k, v in REFERENCES["slips"].items()}
 
 
 class ReportingError(ValueError):
