@@ -25,7 +25,7 @@ from src.reporting.page import (
     provenance_table,
     replace_block,
 )
-from src.reporting.published import KNOWN_SLIPS, known_slips, published_for, published_table
+from src.reporting.published import known_slips, published_for, published_table
 from src.reporting.runs import discover_runs, find_checkpoints
 from src.reporting.tables import AVERAGE, result_table, same_set_average
 from tests.conftest import compose_config
@@ -589,10 +589,9 @@ def test_an_action_without_training_files_is_marked_and_left_out_of_the_judged_a
 
 
 def test_published_rows_that_include_a_slip_of_the_paper_are_flagged():
-    assert known_slips("martinez2017 zero_velocity", ["walking", "phoning", "greeting"]) == {
-        "phoning": KNOWN_SLIPS[("martinez2017", "zero_velocity")]["phoning"],
-        "greeting": KNOWN_SLIPS[("martinez2017", "zero_velocity")]["greeting"],
-    }
+    slips = known_slips("martinez2017 zero_velocity", ["walking", "phoning", "greeting"])
+    assert sorted(slips) == ["greeting", "phoning"]
+    assert all(why.strip() for why in slips.values())
     assert known_slips("li2018 conv_s2s", ["walking", "smoking"]) == {}
     assert known_slips(None, ["smoking"]) == {}
     ref = {"paper": "martinez2017", "method": "zero_velocity"}
