@@ -45,6 +45,7 @@ EVALUATED = [
     "walkingdog",
     "walkingtogether",
 ]
+EVALUATED_CLEAN = [a for a in EVALUATED if a not in ("smoking", "phoning")]
 GRU = {"h36m": {"paper": "martinez2017", "method": "residual_sup_ma"}}
 
 
@@ -99,7 +100,7 @@ def test_the_gru_has_both_published_sources_each_with_its_same_set_gap():
     refs = results.references(results.groups[0])
     assert [r.key for r in refs] == ["martinez2017 residual_sup_ma", "li2018 rrnn"]
     rrnn_same = same_set_average(refs[1].published, EVALUATED, MS)
-    martinez_same = same_set_average(refs[0].published, EVALUATED, MS)
+    martinez_same = results.same_set(results.groups[0], refs[0])
     # The issue's numbers: RRNN over these 11 actions .430 .741 1.119 1.260 1.820.
     assert [round(rrnn_same[ms], 3) for ms in (80, 160, 320, 400, 1000)] == [
         0.43,
@@ -108,37 +109,40 @@ def test_the_gru_has_both_published_sources_each_with_its_same_set_gap():
         1.26,
         1.82,
     ]
-    name = "Martinez et al. residual_sup_ma, 11 actions incl. slips (smoking, phoning)"
+    # Martinez et al.'s same-set average leaves its slips out, and so does ours beside it.
+    assert martinez_same == same_set_average(refs[0].published, EVALUATED_CLEAN, MS)
+    name = "Martinez et al. residual_sup_ma, 9 actions (slips left out: smoking, phoning)"
     martinez = row_of(head, "", "", "", name)
-    assert martinez[5].endswith(
-        f"({0.43 - round(martinez_same[80], 2):+.2f}, {0.43 - round(martinez_same[80], 2):+.2f})"
-    )
-    assert martinez[-1].startswith("beyond 0.03")
+    ours_9 = same_set_average(refs[1].published, EVALUATED_CLEAN, MS)  # ours is RRNN's + 0
+    gap = round(ours_9[160], 2) - round(martinez_same[160], 2)
+    assert martinez[6] == f"{martinez_same[160]:.2f} ({gap:+.2f}, {gap:+.2f})"
+    assert martinez[-1] == "beyond 0.03 at 160 ms"
     rrnn = row_of(head, "", "", "", "Li et al. rrnn, 11 actions")
     assert rrnn[5].endswith("(+0.00, +0.00)") and rrnn[10].endswith("(+0.00, +0.00)")
     assert rrnn[-1] == "within 0.03"
     # Both in the averages table too, each flagged for its own slips.
     table = averages_table(results, "srnn", "euler", published=True)
-    assert "published (martinez2017 residual_sup_ma), same 11 actions (includes slips" in table
+    assert "(martinez2017 residual_sup_ma), same 9 actions (slips of the paper left out" in table
     assert "published (li2018 rrnn), same 11 actions " in table
 
 
-def test_the_verdict_names_the_reference_it_was_judged_against_and_why():
+def test_the_verdict_is_against_the_models_own_paper_without_its_slips():
+    """Issue 53: the GRU is judged against Martinez et al.'s own table, its slips left out of
+    the same-set average (named in the footnote); Li et al.'s RRNN is a second line."""
     results, head, notes, _ = head_of(
         [gru_run(s, d) for s, d in ((1, 0.0), (2, 0.004), (3, -0.003))]
     )
     verdict = results.judge(results.groups[0], "srnn", 0.03)
-    assert (verdict.status, verdict.reference.key) == ("reproduces", "li2018 rrnn")
-    assert "martinez2017 residual_sup_ma" not in verdict.why
-    assert "Martinez et al. residual_sup_ma's same-set average includes slips" in verdict.why
-    assert "(smoking, phoning)" in verdict.why
+    assert (verdict.status, verdict.reference.key) == ("misses", "martinez2017 residual_sup_ma")
+    assert verdict.missed == {"best": [160], "last": [160]}
+    assert "own paper" in verdict.why and "smoking, phoning left out" in verdict.why
     assert row_of(head, "martinez2017_res_sup")[-1] == (
-        "**reproduces**, judged against Li et al. rrnn¹"
+        "**misses**, judged against Martinez et al. residual_sup_ma¹"
     )
-    assert "retraining of the same model" in notes[0] and "smoking, phoning" in notes[0]
-    # Against Martinez et al.'s printed rows it misses, and the row says where.
-    (martinez,) = [r for r in cells(head) if r[3].startswith("Martinez et al.")]
-    assert martinez[-1] == "beyond 0.03 at 80, 160, 320, 400 ms"
+    assert "smoking, phoning" in notes[0] and "Li et al. rrnn" in notes[0]
+    # RRNN keeps its own line, with its own comparison (ours is RRNN's values: within).
+    (rrnn,) = [r for r in cells(head) if r[3].startswith("Li et al. rrnn")]
+    assert rrnn[-1] == "within 0.03"
     # A model with one reference is judged against it, with no reason needed.
     single = Results(group_runs([seeded(0.0, 1)]))
     assert single.judge(single.groups[0], "srnn", 0.03).why == ("the only published source")
@@ -177,14 +181,14 @@ def test_martinez_phoning_is_a_known_slip_flagged_where_it_enters_an_average():
     page = build_page(Results(group_runs([run])), ["srnn"], "cmd", None, "abc", TARGETS)
     assert "(martinez2017 residual_sup_ma) of smoking, phoning are slips of the paper" in page
     _, head, _, _ = head_of([run])
-    assert "Martinez et al. residual_sup_ma, 11 actions incl. slips (smoking, phoning) " in head
+    assert "Martinez et al. residual_sup_ma, 9 actions (slips left out: smoking, phoning) " in head
     assert "Li et al. rrnn, 11 actions " in head  # RRNN's average has no slip
     # Without phoning among the evaluated actions, the flag names smoking only.
     for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
         for table in result["tables"]:
             table["values"].pop("phoning")
             table["absent"]["phoning"] = "not in this copy"
-    assert "incl. slips (smoking) " in head_of([run])[1]
+    assert "9 actions (slips left out: smoking) " in head_of([run])[1]
 
 
 # --- the headline -----------------------------------------------------------------------------
@@ -262,6 +266,23 @@ def test_the_zero_velocity_yardstick_is_a_row_on_the_same_actions():
     published, _ = published_for({"paper": "li2018", "method": "conv_s2s"}, "h36m")
     expected = sum(published[a][1000] for a in EVALUATED) / 11 + 0.3
     assert row[10] == f"{expected:.2f}"
+
+
+@pytest.mark.parametrize(
+    "delta, clause",
+    [
+        (0.0, "; no better than zero-velocity at 560 ms"),  # equal there (1.0, no published)
+        (0.01, "; no better than zero-velocity at 80, 160, 320, 400, 560, 1000 ms"),
+    ],
+)
+def test_a_row_no_better_than_zero_velocity_says_so_in_its_verdict(delta, clause):
+    """Issue 53: beating zero-velocity is the papers' headline claim, so a trained row whose
+    printed average is not below zero-velocity's on the same actions says where."""
+    zero = {"label": "zero_velocity", "dataset": "h36m", "results": {"srnn": offset_result(0.01)}}
+    results = Results(group_runs([seeded(delta, 1)]), [zero])
+    head, _, _ = headline_table(results, "srnn", TARGETS, None)
+    verdict = row_of(head, "li2018_h36m")[-1]
+    assert verdict == "**reproduces**, judged against Li et al. conv_s2s" + clause
 
 
 @pytest.mark.parametrize("n, rows", [(1, "1 trained row:"), (2, "2 trained rows:")])

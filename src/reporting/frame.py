@@ -1,8 +1,9 @@
 """Every evaluation as one long table (`Results.frame`: a row per run, protocol, checkpoint, metric,
 action, horizon; value NaN where absent, trained False without training files), and what the page
 concludes from it: a cell is the mean ± std (n - 1) over the seeds of each seed's average over the
-actions; a group is judged against its paper's same-set average, over the actions with training
-files, or another reference's where its paper's includes a known slip.
+actions; a group is judged against its own paper's same-set average, over the actions with
+training files, the paper's slips left out (known ones, and every published zero-velocity cell
+that the protocol's deterministic zero-velocity does not give).
 """
 
 from __future__ import annotations
@@ -27,6 +28,10 @@ PROTOCOLS = {
 COLUMNS = ["g", "experiment", "dataset", "iterations", "seed", "run", "protocol", "checkpoint"]
 COLUMNS += ["metric", "action", "horizon", "value", "absent", "trained"]
 KEYS = ["g", "protocol", "checkpoint", "metric"]
+# A printed value is rounded to 2 decimals: a difference beyond half of its last digit is not
+# rounding. Zero-velocity is deterministic, so such a published cell is a slip of the paper.
+ROUNDING = 0.005
+ZERO = "zero_velocity"
 
 
 class Reference(NamedTuple):
@@ -118,6 +123,15 @@ class Results:
             for judged in (False, True)
         }
         self._refs = {e: self._references(e) for e in self.entries}
+        self.zero_cells = self._zero_velocity_cells()
+        self.slip_cells = self.zero_cells[self.zero_cells.slip.astype(bool)]
+        self.slips: dict[str, dict[str, str]] = {}  # reference key -> {action: why}
+        for e in self.entries:
+            for ref in self._refs[e]:
+                found = known_slips(ref.key, self.actions(e, judged=False))
+                self.slips.setdefault(ref.key, {}).update(found)
+        for key, action, why in self.slip_cells[["key", "action", "why"]].itertuples(index=False):
+            self.slips.setdefault(key, {}).setdefault(action, why)
 
     def _rows(self):
         for g, group in enumerate(self.entries):
@@ -182,30 +196,95 @@ class Results:
     def references(self, group: Group) -> list[Reference]:
         return self._refs[group]
 
+    def _zero_velocity_cells(self) -> pd.DataFrame:
+        """Each published zero-velocity cell of an action evaluated here on the papers' windows
+        (SRNN seeds) beside ours: key, dataset, action, ms, published, ours, slip (beyond
+        rounding), why."""
+        rows = []
+        f = self.frame[(self.frame.protocol == "srnn") & (self.frame.metric == "euler")]
+        for zero in (b for b in self.baselines if b.label == ZERO):
+            cells = f[f.g == self._g[zero]].dropna(subset=["value"])
+            for ref in (r for r in self._refs[zero] if r.key.endswith(f" {ZERO}")):
+                for action, ms, ours in cells[["action", "horizon", "value"]].itertuples(False):
+                    if (printed := ref.published.get(action, {}).get(ms)) is None:
+                        continue
+                    why = f"published {printed:.2f} at {ms} ms, the protocol gives {ours:.3f}"
+                    slip = abs(ours - printed) > ROUNDING
+                    rows.append((ref.key, zero.dataset, action, ms, printed, ours, slip, why))
+        columns = ["key", "dataset", "action", "ms", "published", "ours", "slip", "why"]
+        return pd.DataFrame(rows, columns=columns)
+
+    def slips_in(self, reference: Reference, actions: list[str]) -> dict[str, str]:
+        """{action: why} of the `actions` whose published values under `reference` are slips."""
+        slips = self.slips.get(reference.key, {})
+        return {a: slips[a] for a in actions if a in slips}
+
+    def clean_actions(self, group: Group, reference: Reference, judged=True) -> list[str]:
+        """The (judged) evaluated actions less the reference's slips: its same-set actions."""
+        actions = self.actions(group, judged)
+        return [a for a in actions if a not in self.slips_in(reference, actions)]
+
     def same_set(self, group: Group, reference: Reference, judged=True) -> dict[int, float]:
-        """The reference's average over the (judged) evaluated actions."""
-        return same_set_average(reference.published, self.actions(group, judged), HORIZONS)
+        """The reference's average over the (judged) evaluated actions, its slips left out."""
+        actions = self.clean_actions(group, reference, judged)
+        return same_set_average(reference.published, actions, HORIZONS)
+
+    def mean_over(self, entry: Group, protocol: str, checkpoint: str, actions) -> dict:
+        """{ms: mean over the seeds of each seed's Euler average over `actions`}; {} unless
+        every one of them was evaluated."""
+        f = self.frame
+        f = f[(f.g == self._g[entry]) & (f.protocol == protocol) & (f.checkpoint == checkpoint)]
+        f = f[(f.metric == "euler") & f.action.isin(actions)].dropna(subset=["value"])
+        if not len(actions) or set(f.action) != set(actions):
+            return {}
+        return f.groupby(["seed", "horizon"]).value.mean().groupby(level="horizon").mean().to_dict()
+
+    def no_better_than_zero(self, group: Group, protocol: str) -> dict[str, list[int]]:
+        """{checkpoint: horizons where, as printed, ours is not below zero-velocity's average over
+        the same judged actions}; {} without a zero-velocity evaluation of them."""
+        zeros = [b for b in self.baselines if (b.label, b.dataset) == (ZERO, group.dataset)]
+        actions = self.actions(group)
+        if not zeros or not (zero := self.mean_over(zeros[0], protocol, "-", actions)):
+            return {}
+        out = {}
+        for s in SELECTIONS:
+            ours = self.mean_over(group, protocol, s, actions)
+            out[s] = [ms for ms in HORIZONS if ms in ours and ms in zero and
+                      round(ours[ms], 2) >= round(zero[ms], 2)]  # fmt: skip
+        return out
+
+    def ours_same_set(self, group: Group, reference: Reference, protocol: str, checkpoint: str):
+        """{ms: ours} over the reference's same-set actions (slips left out on both sides)."""
+        actions = self.clean_actions(group, reference)
+        return self.mean_over(group, protocol, checkpoint, actions)
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
         """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""
         same, out = self.same_set(group, reference), {}
         for s in SELECTIONS:
-            ours = self.means(group, protocol, s, judged=True)
+            ours = self.ours_same_set(group, reference, protocol, s)
             out[s] = [
                 ms for ms in same if ms in ours and abs(printed_gap(ours[ms], same[ms])) > target
             ]
         return out
 
     def reference(self, group: Group) -> tuple[Reference | None, str]:
-        """The reference a group is judged against, and why that one."""
-        refs, actions = self.references(group), self.actions(group)
+        """The reference a group is judged against (its own paper's, unless that one has no
+        same-set average), and why that one."""
+        refs = self.references(group)
         if not (usable := [r for r in refs if self.same_set(group, r)]):
             return None, "its paper prints an average only"
-        clean = [r for r in usable[1:] if not known_slips(r.key, actions)]
-        if (slips := known_slips(usable[0].key, actions)) and clean:
-            why = f"{usable[0].name}'s same-set average includes slips of the paper"
-            return clean[0], f"{why} ({', '.join(slips)})"
-        return usable[0], "the only published source" if len(refs) == 1 else "the model's own paper"
+        why = "the only published source" if len(refs) == 1 else "the model's own paper"
+        if usable[0] is not refs[0]:
+            why = f"{refs[0].name} has no same-set average"
+        actions = self.actions(group)
+        if slips := self.slips_in(usable[0], actions):
+            kept = len(actions) - len(slips)
+            why += (
+                f", over {kept} of the {len(actions)} actions: {', '.join(slips)} left out as "
+                "slips of the paper"
+            )
+        return usable[0], why
 
     def judge(self, group: Group, protocol: str, target: float | None) -> Judgement:
         if not (refs := self.references(group)) or target is None:
@@ -230,10 +309,10 @@ class Results:
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
         """Where a judged row misses most, the actions that carry it, the seed spread beside it."""
-        ref, actions = judgement.reference, self.actions(group)
+        ref = judgement.reference
         same = self.same_set(group, ref)
         gaps = {
-            (s, ms): printed_gap(self.means(group, protocol, s, True)[ms], same[ms])
+            (s, ms): printed_gap(self.ours_same_set(group, ref, protocol, s)[ms], same[ms])
             for s, horizons in judgement.missed.items()
             for ms in horizons
         }
@@ -241,6 +320,7 @@ class Results:
         f = self.frame
         f = f[(f.g == self._g[group]) & (f.protocol == protocol) & (f.metric == "euler")]
         cells = f[(f.checkpoint == selection) & (f.horizon == ms)].groupby("action").value.mean()
+        actions = self.clean_actions(group, ref)
         top = [(a, cells[a] - ref.published[a][ms]) for a in actions]
         top = ", ".join(f"{a} {signed(v)}" for a, v in sorted(top, key=lambda kv: -abs(kv[1]))[:3])
         text = (

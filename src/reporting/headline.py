@@ -9,7 +9,7 @@ import datetime as dt
 import src.reporting.frame as fr
 from src.plots import Curve, line_panels
 from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTIONS, Results
-from src.reporting.published import REFERENCES, known_slips
+from src.reporting.published import REFERENCES
 from src.reporting.tables import AVERAGE, fmt, markdown
 
 SUPERSCRIPTS = str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹")
@@ -35,21 +35,33 @@ def headline_groups(results: Results) -> list:
 
 
 def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
-    """{group: judgement} of each experiment's longest budget (its groups come longest first)."""
-    first = {(g.label, g.dataset): g for g in reversed(groups)}.values()
-    return {g: results.judge(g, protocol, targets.get(g.dataset)) for g in groups if g in first}
+    """{group: judgement} of every budget of every experiment."""
+    return {g: results.judge(g, protocol, targets.get(g.dataset)) for g in groups}
+
+
+def longest(groups) -> list:
+    """Each experiment's longest budget (its groups come longest first)."""
+    return list({(g.label, g.dataset): g for g in reversed(groups)}.values())
+
+
+def where(horizons: dict[str, list[int]]) -> str:
+    """'80, 160 ms' where both checkpoints agree, else 'best 80 ms; last 80, 160 ms'."""
+    if horizons["best"] == horizons["last"]:
+        return fr.ms_list(horizons["best"])
+    return "; ".join(f"{s} {fr.ms_list(horizons[s])}" for s in SELECTIONS if horizons[s])
 
 
 def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
     """(label, cells, verdict): the same-set average, ours minus it, where beyond the target."""
     actions, same = results.actions(group), results.same_set(group, ref)
-    ours = {s: results.means(group, protocol, s, judged=True) for s in SELECTIONS}
+    ours = {s: results.ours_same_set(group, ref, protocol, s) for s in SELECTIONS}
     if not same:
         cells = [fmt(ref.published.get(AVERAGE, {}).get(ms)) for ms in HORIZONS]
         return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
     name = f"{ref.name}, {len(actions)} actions"
-    if slips := known_slips(ref.key, actions):
-        name += f" incl. slips ({', '.join(slips)})"
+    if slips := results.slips_in(ref, actions):
+        kept = len(actions) - len(slips)
+        name = f"{ref.name}, {kept} actions (slips left out: {', '.join(slips)})"
     gaps = {
         ms: [fr.signed(fr.printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS] for ms in same
     }
@@ -57,10 +69,8 @@ def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str
     missed = results.missed(group, protocol, ref, target) if target is not None else {}
     if target is None or not any(missed.values()):
         return name, cells, "-" if target is None else f"within {target:.2f}"
-    if missed["best"] == missed["last"]:
-        return name, cells, f"beyond {target:.2f} at {fr.ms_list(missed['best'])}"
-    where = "; ".join(f"{s} {fr.ms_list(missed[s])}" for s in SELECTIONS if missed[s])
-    return name, cells, f"beyond {target:.2f}: {where}"
+    sep = " at " if missed["best"] == missed["last"] else ": "
+    return name, cells, f"beyond {target:.2f}{sep}{where(missed)}"
 
 
 def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
@@ -82,15 +92,19 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
                 f"published one likewise), shown in the per-action tables and the rows 'all "
                 f"{len(everything)} actions'."
             )
-        j, verdict = judged.get(group), "shorter budget"
+        j, verdict = judged.get(group), "-"
         if j is not None and j.status == "not judged":
             verdict = f"not judged ({j.why})"
-        elif j is not None:
+        elif j is not None and j.status != "-":
             ref = j.reference
             verdict = j.status if ref is None else f"**{j.status}**, judged against {ref.name}"
-            if ref is not None and len(results.references(group)) > 1:
-                about = f" ({ref.about})" if ref.about else ""
-                verdict += mark(f"{group.label}: judged against {ref.name}{about}: {j.why}.")
+            others = [r for r in results.references(group) if r is not ref]
+            if ref is not None and (others or "left out" in j.why):
+                also = "; ".join(f"{r.name}" + (f" ({r.about})" if r.about else "") for r in others)
+                also = f"; second reference: {also}" * bool(also)
+                verdict += mark(f"{group.label}: judged against {ref.name} ({j.why}){also}.")
+        if (no_better := results.no_better_than_zero(group, protocol)) and any(no_better.values()):
+            verdict += f"; no better than zero-velocity at {where(no_better)}"
         for all_actions in (False, True) if untrained else (False,):
             for s in SELECTIONS:
                 first = (label, group.dataset) if (s, all_actions) == ("best", False) else ("", "")
@@ -121,7 +135,7 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
     why = [
         results.diagnosis(group, protocol, j, checked.get(group.run_name))
         for group, j in judged.items()
-        if j.status == "misses"
+        if j.status == "misses" and group in longest(groups)
     ]
     columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
     return markdown(rows, columns), footnotes, why

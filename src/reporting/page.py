@@ -9,12 +9,13 @@ import itertools
 import os
 from pathlib import Path
 
+import src.reporting.frame as fr
 import src.reporting.headline as hl
 from src.lit.factory import ConfigError
 from src.reporting.claims import claims_section
 from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTION_LABELS, SELECTIONS, Results
-from src.reporting.published import known_slips
-from src.reporting.tables import AVERAGE, fmt, markdown, same_set_average
+from src.reporting.published import published_frame
+from src.reporting.tables import AVERAGE, fmt, markdown
 
 
 def replace_block(path: Path, name: str, text: str | None = None) -> None:
@@ -71,13 +72,13 @@ def averages_table(results: Results, protocol: str, metric: str, published: bool
             rows.append(row + hl.stat_cells(results.average(group, protocol, s, metric), decimals))
         evaluated = results.actions(group, judged=False)
         for ref in results.references(group) if published and metric == "euler" else ():
-            slips = known_slips(ref.key, evaluated)
-            flag = f" (includes slips of the paper: {', '.join(slips)})" if slips else ""
+            slips = results.slips_in(ref, evaluated)
+            flag = f" (slips of the paper left out: {', '.join(slips)})" if slips else ""
             n = len(set(ref.published) - {AVERAGE})
-            same = same_set_average(ref.published, evaluated, HORIZONS)
+            same = results.same_set(group, ref, judged=False)
             printed = ref.published.get(AVERAGE, {})
             for what, values in (
-                (f"same {len(evaluated)} actions{flag}", same),
+                (f"same {len(evaluated) - len(slips)} actions{flag}", same),
                 (f"as printed (all {n or 'of its'} actions)", printed),
             ):
                 label = f"{group.label}: published ({ref.key}), {what}"
@@ -211,14 +212,43 @@ def data_lines(results: Results) -> list[str]:
                 "archive's): " + ", ".join(short) + "."
             )
         for ref in results.references(group):
-            if slips := known_slips(ref.key, evaluated):
+            if slips := results.slips_in(ref, evaluated):
                 lines.append(
                     f"- {group.label}: the published values ({ref.key}) of {', '.join(slips)} are "
                     "slips of the paper (shared docs/published_results.md): "
                     + "; ".join(slips.values())
-                    + ". Kept as printed, so the published averages that include them are off too."
+                    + ". Left out of the same-set averages, on both sides."
                 )
+    if len(cells := results.slip_cells):
+        by_action = cells.groupby(["key", "dataset", "action"], sort=False).ms.agg(list)
+        found = "; ".join(
+            f"{action} ({fr.ms_list(ms)})" for (_, _, action), ms in by_action.items()
+        )
+        keys = ", ".join(dict.fromkeys(cells.key))
+        agree = sorted(set(results.zero_cells.action) - set(cells.action))
+        agree = f" The others ({', '.join(agree)}) agree to rounding." if agree else ""
+        lines.append(
+            f"- Slips found by the protocol ({keys}): zero-velocity is deterministic, so a "
+            f"published cell more than {fr.ROUNDING} away from ours on the same windows is a slip "
+            f"of the paper: {found}. An action with such a cell is left out of every same-set "
+            "zero-velocity average; each cell, with ours beside it, is in "
+            f"[published.csv](results/published.csv).{agree}"
+        )
     return [*lines, ""] if lines else []
+
+
+def published_csv(results: Results) -> str:
+    """Every published cell of the references on the page, and why it is a slip ('' if not)."""
+    keys = {r.key for e in results.entries for r in results.references(e)}
+    f = published_frame()
+    f = f[(f.paper + " " + f.method).isin(keys)].copy()
+    found = {(c.key, c.dataset, c.action, c.ms): c.why for c in results.slip_cells.itertuples()}
+    ours = {(c.key, c.dataset, c.action, c.ms): c.ours for c in results.zero_cells.itertuples()}
+    keys = list(zip(f.paper + " " + f.method, f.dataset, f.action, f.ms, strict=True))
+    f["ours"] = [ours.get(k) for k in keys]  # zero-velocity's, the protocol's on this data
+    # A cell found by the protocol, else its action's known slip (references.json).
+    f["slip"] = [found.get(k) or results.slips.get(k[0], {}).get(k[2], "") for k in keys]
+    return f.to_csv(index=False, float_format="%.4g")
 
 
 def build_page(
@@ -261,6 +291,7 @@ def write_page(results, out: Path, protocols, command, budget, commit, targets, 
     tables.mkdir(parents=True, exist_ok=True)
     for m, p in itertools.product(("euler", "mpjpe"), protocols):
         (tables / f"{m}_{p}.csv").write_text(per_action_csv(results, p, m))
+    (tables / "published.csv").write_text(published_csv(results))
     figures, names = hl.figures(results, protocols[0]), [None, None]
     for k, (figure, kind) in enumerate(zip(figures, ("errors", "validation"), strict=True)):
         if figure is not None:
