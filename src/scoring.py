@@ -15,7 +15,7 @@ from omegaconf import DictConfig
 from torch import Tensor, nn
 
 from src.data.base import MotionDataModule, data_sha256, window_ids
-from src.data.layout import SPECS
+from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
 from src.lit.factory import ConfigError, build_test_data
 from src.lit.predictor import MotionPredictor
 from src.metrics.euler_error import horizon_frame_indices
@@ -124,6 +124,14 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
         raise PredictionsError(
             f"{path}: prediction has {T} frames per window, the protocol scores {need} "
             f"(data.future_len): save the first {need}, prediction[:, :{need}]"
+        )
+    # Else degrees would be scored, without a word, as an error of some 10 rad at every horizon.
+    angle, (row, frame, joint) = largest_rotation(preds.prediction, dm.normalizer.used.numpy())
+    if angle > MAX_RADIANS:
+        raise PredictionsError(
+            f"{path}: prediction holds a joint rotation of {angle:.1f} (window {preds.ids[row]!r}, "
+            f"frame {frame}, columns {3 + 3 * joint}-{5 + 3 * joint}); exp-map angles in radians "
+            "stay within pi, so these look like degrees: convert them with np.deg2rad(prediction)"
         )
     counts = Counter(preds.ids)
     if repeated := [i for i, n in counts.items() if n > 1]:
