@@ -404,6 +404,25 @@ def test_each_bad_predictions_file_is_one_line_naming_the_fix(
     assert message in text, text
 
 
+@pytest.mark.parametrize(
+    ("layout", "axes"),
+    [("windows, columns, frames", (0, 2, 1)), ("frames, windows, columns", (1, 0, 2))],
+)
+def test_a_transposed_prediction_is_named_transposed(
+    layout, axes, srnn_windows, tmp_path, synthetic_data_dir
+):
+    """It was blamed on window_id (24 ids for 25 predictions) or on its number of columns."""
+    good = _zero_velocity(srnn_windows)
+    prediction = good["prediction"].transpose(axes)  # its own inverse, both of these
+    path = _save(tmp_path, {**good, "prediction": prediction})
+    with pytest.raises(PredictionsError) as info:
+        _evaluate(tmp_path, synthetic_data_dir, f"predictions={path}", "data=synthetic")
+    text = str(info.value)
+    assert str(path) in text and "transposed" in text and "window_id" not in text, text
+    assert str(prediction.shape) in text and "(24, 25, 99)" in text, text  # found, expected
+    assert f"transpose{axes}" in text, text  # the fix, which gives back the expected shape
+
+
 def test_a_prediction_in_degrees_is_refused_naming_the_unit_and_the_fix(
     srnn_windows, tmp_path, synthetic_data_dir
 ):
