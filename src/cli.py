@@ -21,10 +21,12 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.lit.config import constructor_schema
 from src.lit.factory import PROJECT_ROOT
-from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse
+from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse, stop_interrupted
 
 CONF_DIR = PROJECT_ROOT / "conf"
-no_tips = lambda record: not str(record.msg).startswith("💡 Tip")  # noqa: E731
+# Lightning's advertisements for its cloud products, and its Ctrl-C line, which ours replaces.
+LIGHTNING_NOISE = ("💡 Tip", "Detected KeyboardInterrupt")
+no_tips = lambda record: not str(record.msg).lstrip().startswith(LIGHTNING_NOISE)  # noqa: E731
 
 
 def group_options(group: str) -> str:
@@ -51,24 +53,38 @@ def silence_false_warnings() -> None:
     # Lightning 2.6 builds torch's deprecated LeafSpec itself; nothing a user can change.
     leaf_spec = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
     warnings.filterwarnings("ignore", message=leaf_spec, category=FutureWarning)
-    # Lightning's advertisements for its cloud products ("💡 Tip: ... try litlogger").
+    # Lightning's advertisements ("💡 Tip: ... try litlogger") and its Ctrl-C line.
     tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
     tips.addFilter(no_tips)  # added once however often called
 
 
+def lightning_interrupt_raised(fn, cfg: DictConfig):
+    """fn(cfg), with a Ctrl-C inside a Lightning Trainer raised as the KeyboardInterrupt it
+    was: the Trainer turns it into its own sys.exit(1), inside `except KeyboardInterrupt`."""
+    try:
+        return fn(cfg)
+    except SystemExit as err:
+        if isinstance(err.__context__, KeyboardInterrupt):
+            raise err.__context__ from None
+        raise
+
+
 def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True):
     """`@hydra.main` for `conf/<config_name>.yaml`; the project's errors end it in one line,
-    exit status 2. With `tidy`, a refusal removes what the command put into its run folder,
-    unless its file `started` exists (the run had begun)."""
+    exit status 2, a Ctrl-C in one line, status 130. With `tidy`, a refusal or a Ctrl-C removes
+    what the command put into its run folder, unless its file `started` exists (the run had
+    begun)."""
 
     def decorate(fn):
         @functools.wraps(fn)
         def task(cfg: DictConfig):
             try:
                 with nothing_left_if_refused(started) if tidy else contextlib.nullcontext():
-                    return fn(cfg)
+                    return lightning_interrupt_raised(fn, cfg)
             except USER_ERRORS as err:
                 refuse(err)
+            except KeyboardInterrupt:
+                stop_interrupted()
 
         @functools.wraps(fn)
         def entry(cfg_passthrough: DictConfig | None = None):
@@ -90,6 +106,8 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
                 return run(task)()
             except (Composition, OverrideParseException, SearchPathException) as err:
                 refuse(hydra_error(err, config_name))
+            except KeyboardInterrupt:  # while Hydra composes, before the task runs
+                stop_interrupted()
             finally:
                 os.environ.pop("HYDRA_FULL_ERROR", None)
 

@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from src.data.layout import MAX_RADIANS, largest_rotation
 from src.data.normalization import Normalizer
 from src.lit.factory import load_trained
 
@@ -86,6 +87,7 @@ class MotionForecaster:
         self.normalizer = normalizer.to(self.device).eval()
         self.actions, self.observed_len, self.fps = list(actions), observed_len, float(fps)
         self.num_features = normalizer.num_features
+        self._used = normalizer.used.cpu().numpy()  # for the degrees check, without a sync
 
     @classmethod
     def from_checkpoint(
@@ -145,6 +147,16 @@ class MotionForecaster:
         if not np.isfinite(x).all():  # here, not on the device, where it would sync
             bad = np.argwhere(~np.isfinite(x))[0].tolist()
             raise InferenceInputError(f"frames hold NaN or inf (first at {bad}); clean them")
+        # Frames in degrees would be forecast as if in radians, without a word.
+        angle, where = largest_rotation(x, self._used)
+        if angle > MAX_RADIANS:
+            *frame, joint = where
+            at = f"frame {frame}, " if frame else ""
+            raise InferenceInputError(
+                f"frames hold a joint rotation of {angle:.1f} ({at}columns {3 + 3 * joint}-"
+                f"{5 + 3 * joint}); exp-map angles in radians stay within pi, so these look like "
+                "degrees: convert them with np.deg2rad(frames)"
+            )
         return x
 
     def _network(self, batch: int, future_len: int) -> nn.Module:

@@ -8,6 +8,7 @@ from pathlib import Path
 import lightning as L
 from omegaconf import DictConfig
 
+from src.data.files import atomic_write
 from src.lit.config import check
 from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
@@ -67,6 +68,8 @@ def evaluate(cfg: DictConfig) -> dict:
     (out_dir / "results.md").write_text(markdown + "\n")
     (out_dir / "results.csv").write_text(tables_csv(tables))
     result = {"provenance": provenance, "tables": tables}
-    (out_dir / "results.json").write_text(json.dumps(result, indent=2))
+    # Last and whole or not at all: its presence marks the folder complete (src/eval.py's
+    # started=), which a Ctrl-C or a refusal leaves in place.
+    atomic_write(out_dir / "results.json", lambda tmp: tmp.write_text(json.dumps(result, indent=2)))
     print(f"{markdown}\n\nwritten to {out_dir}")
     return result

@@ -5,6 +5,7 @@ all (then reported absent)."""
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ from omegaconf import DictConfig
 from torch import Tensor, nn
 
 from src.data.base import MotionDataModule, data_sha256, window_ids
-from src.data.layout import SPECS
+from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
 from src.lit.factory import ConfigError, build_test_data
 from src.lit.predictor import MotionPredictor
 from src.metrics.euler_error import horizon_frame_indices
@@ -27,6 +28,30 @@ SAVE = "np.savez(path, prediction=<(N, T, F) raw exp-map>, window_id=<windows.np
 
 class PredictionsError(ConfigError):
     """A predictions file that cannot be scored."""
+
+
+def transposed_axes(shape: tuple[int, ...], expected: tuple) -> tuple[int, ...] | None:
+    """The axes for np.transpose, other than (0, 1, 2), that turn `shape` into `expected`,
+    (windows, frames, columns), or None. Sizes not known yet (read_predictions reads no data)
+    are None: then any number of frames, a dataset's number of columns."""
+    windows, frames, columns = expected
+    for axes in itertools.permutations(range(3)):
+        n, t, f = (shape[a] for a in axes)
+        known = f == columns if columns else f in {s.n_columns for s in SPECS.values()}
+        if axes != (0, 1, 2) and n == windows and frames in (None, t) and known:
+            return axes
+    return None
+
+
+def refuse_transposed(path: Path, shape: tuple[int, ...], expected: tuple) -> None:
+    """Name a transposed prediction as such: its other checks would blame window_id or say it
+    has `frames` columns."""
+    if (axes := transposed_axes(shape, expected)) is not None:
+        want = tuple(shape[a] for a in axes)
+        raise PredictionsError(
+            f"{path}: prediction has shape {shape}, (windows, frames, columns) = {want} was "
+            f"expected: it looks transposed; save prediction.transpose{axes}"
+        )
 
 
 @dataclass
@@ -72,6 +97,8 @@ def read_predictions(path: str | Path) -> Predictions:
             f"{path}: prediction is {prediction.dtype} of shape {prediction.shape}; it must hold "
             "numbers and it must be (N, T, F) with N >= 1: T raw exp-map frames per window"
         )
+    if ids.ndim == 1 and len(ids) != len(prediction):
+        refuse_transposed(path, prediction.shape, (len(ids), None, None))
     if ids.dtype.kind not in "US" or ids.shape != (len(prediction),):
         raise PredictionsError(
             f"{path}: window_id is {ids.dtype} of shape {ids.shape}, {ids.size} window ids for "
@@ -100,6 +127,9 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
     predictions for, {action: reason}."""
     path, (_, T, F), protocol = preds.path, preds.prediction.shape, dm.eval_protocol
     export = f"`python -m src.export_windows data={dataset} protocol={protocol}`"
+    expected = (len(preds.ids), dm.future_len, dm.num_features)
+    if preds.prediction.shape != expected:
+        refuse_transposed(path, preds.prediction.shape, expected)
     if F != dm.num_features:
         others = [s.name for s in SPECS.values() if s.n_columns == F]
         why = f"give raw exp-map frames of {dm.num_features} columns, as windows.npz's"
@@ -124,6 +154,14 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
         raise PredictionsError(
             f"{path}: prediction has {T} frames per window, the protocol scores {need} "
             f"(data.future_len): save the first {need}, prediction[:, :{need}]"
+        )
+    # Else degrees would be scored, without a word, as an error of some 10 rad at every horizon.
+    angle, (row, frame, joint) = largest_rotation(preds.prediction, dm.normalizer.used.numpy())
+    if angle > MAX_RADIANS:
+        raise PredictionsError(
+            f"{path}: prediction holds a joint rotation of {angle:.1f} (window {preds.ids[row]!r}, "
+            f"frame {frame}, columns {3 + 3 * joint}-{5 + 3 * joint}); exp-map angles in radians "
+            "stay within pi, so these look like degrees: convert them with np.deg2rad(prediction)"
         )
     counts = Counter(preds.ids)
     if repeated := [i for i, n in counts.items() if n > 1]:

@@ -64,6 +64,32 @@ def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: 
     return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
 
 
+CTRL_C_AT = """
+import os, pkgutil, runpy, signal, sys, time
+owner, name, after, module = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+target = pkgutil.resolve_name(owner)
+original, calls = getattr(target, name), []
+def ctrl_c(*args, **kwargs):
+    calls.append(1)
+    if len(calls) > after:
+        os.kill(os.getpid(), signal.SIGINT)  # what a terminal sends on Ctrl-C
+        time.sleep(60)  # the KeyboardInterrupt is raised here
+    return original(*args, **kwargs)
+setattr(target, name, ctrl_c)
+sys.argv = [module, *sys.argv[5:]]
+runpy.run_module(module, run_name="__main__", alter_sys=True)
+"""
+
+
+def run_interrupted(at: tuple[str, str], after: int, module: str, *args: str, data_dir, log_dir):
+    """run_module with a Ctrl-C (a real SIGINT) at call `after` + 1 of attribute at[1] of at[0]
+    (a module, or "module:Class" as pkgutil.resolve_name takes it): at a chosen point, no race."""
+    env = {**os.environ, "MOTION_DATA_DIR": str(data_dir), "PYTHONUNBUFFERED": "1"}
+    cmd = [sys.executable, "-c", CTRL_C_AT, *at, str(after), module]
+    cmd += [f"paths.log_dir={log_dir}", *args]
+    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+
+
 ONE_PROCESS = """
 import contextlib, io, json, runpy, sys
 from hydra.core.global_hydra import GlobalHydra

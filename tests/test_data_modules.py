@@ -20,6 +20,7 @@ from src.data.reader import read_motion_file
 from src.data.synthetic import H36M_USED_COLUMNS, SyntheticDataModule, write_synthetic_h36m
 from src.data.windows import cmu_test_starts, srnn_h36m_starts
 from tests import objects
+from tests.conftest import run_in_one_process
 
 SMALL = dict(batch_size=4, steps_per_epoch=3, eval_batch_size=5)
 
@@ -233,6 +234,29 @@ def test_missing_files_are_counted_by_kind_and_the_message_says_what_is_done(tmp
     assert "the checkpoint holds the normalisation); evaluating with the files" in checkpoint
     baseline = messages["evaluate a baseline"]
     assert "(1 training, 1 test); normalising and evaluating with the files" in baseline
+
+
+def test_missing_files_are_one_line_with_their_count_and_the_flag_that_lists_them(tmp_path):
+    """Every command printed a partial copy's whole list (20 lines on the real H3.6M copy):
+    one line counts them and names the flag that lists them; with it, the command lists every
+    one (once), without it none."""
+    SyntheticDataModule(tmp_path).prepare_data()
+    root = tmp_path / "synthetic"
+    gone = ["h3.6m/dataset/S1/smoking_1.txt", "h3.6m/dataset/S1/smoking_2.txt"]
+    for rel in gone:
+        (root / rel).unlink()
+    args = ["model=zero_velocity", "data=h36m", "data.actions=[walking,eating,smoking]"]
+    args += ["data.train_subjects=[1]", "paths.allow_partial=true", "trainer=cpu"]
+    plain, listed = run_in_one_process(
+        ["src.eval", *args], ["src.eval", *args, "hydra.verbose=src.data.base"],
+        data_dir=root, log_dir=tmp_path / "out",
+    )  # fmt: skip
+    for proc in plain, listed:
+        assert proc.returncode == 0, proc.stderr[-3000:]
+    (line,) = [x for x in plain.stdout.splitlines() if "are missing under" in x]
+    assert "2 h36m file(s)" in line and "hydra.verbose=src.data.base" in line, line
+    assert not any(rel in plain.stdout + plain.stderr for rel in gone)
+    assert all(listed.stdout.count(rel) == 1 for rel in gone), listed.stdout[-3000:]
 
 
 def test_missing_data_root(tmp_path, monkeypatch):

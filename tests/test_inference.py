@@ -112,6 +112,26 @@ def test_bad_inputs_raise_clear_errors(forecaster, frames):
         MotionForecaster.from_checkpoint("/nonexistent/last.ckpt")
 
 
+def test_frames_in_degrees_are_refused_naming_the_unit_and_the_fix(forecaster, frames):
+    """Degrees were forecast as if radians, without a word. Exp-map angles of real motion stay
+    within pi (at most 3.1416 in every frame of the real archives); the root position (columns
+    0-2) is no angle, and columns the model ignores (48-50 here) are not read."""
+    degrees = np.rad2deg(frames[:, :50])
+    for call in (
+        lambda: forecaster.predict(degrees),
+        lambda: forecaster.stream().push(degrees[0, 0]),
+    ):
+        with pytest.raises(InferenceInputError) as info:
+            call()
+        assert "degrees" in str(info.value) and "np.deg2rad" in str(info.value)
+    x = frames[0, :50].copy()
+    x[:, :3] = 5000.0
+    x[:, 3:6] = [np.pi, 0.0, 0.0]
+    x[:, 48:51] = 180.0
+    assert not forecaster.normalizer.used[48:51].any()
+    assert forecaster.predict(x).shape == (25, F)
+
+
 def test_a_checkpoint_whose_config_this_version_cannot_build_is_refused(ckpt_path, tmp_path):
     """A network setting this version no longer has (4b904c1 took model.net.incremental): one
     CheckpointError naming the file, not Hydra's instantiation traceback."""

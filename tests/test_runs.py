@@ -25,7 +25,7 @@ from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
 from src.lit.resume import describe, restore_run
 from src.lit.run_folders import claim_run_folder
-from tests.conftest import ROOT, run_in_one_process
+from tests.conftest import ROOT, run_in_one_process, run_interrupted
 from tests.test_resume import TINY
 
 GRU = [
@@ -392,6 +392,49 @@ def test_a_named_folder_holding_a_run_is_left_untouched(tmp_path, synthetic_data
     assert proc.returncode == 2
     assert "already holds a run; nothing was written to it" in _error_line(proc)
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+
+
+def _interrupted_line(proc) -> str:
+    """The one line a Ctrl-C ends a command with: status 130, no traceback, not Lightning's."""
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 130, output[-3000:]
+    assert "Traceback" not in output and "KeyboardInterrupt" not in output, output[-3000:]
+    (line,) = [x for x in proc.stderr.splitlines() if "Ctrl-C" in x]
+    return line
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_eval_leaves_no_half_written_folder_and_what_was_there(
+    tmp_path, synthetic_data_dir
+):
+    """Ctrl-C during src.eval's test loop (Lightning's Trainer exited 1 with its own line)
+    and while it writes its results (results.md written, results.json not yet): status 130,
+    one line, and of the folder only what a user had put there before."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the user's")
+    args = ["model=zero_velocity", "data=synthetic", "trainer=cpu"]
+    at_test = ("src.lit.predictor:MotionPredictor", "predict_windows")
+    proc = run_interrupted(
+        at_test, 0, "src.eval", *args, f"hydra.run.dir={mine}",
+        data_dir=synthetic_data_dir, log_dir=tmp_path / "logs",
+    )  # fmt: skip
+    assert str(mine) in _interrupted_line(proc)
+    assert os.listdir(mine) == ["notes.txt"] and (mine / "notes.txt").read_text() == "the user's"
+    # Its own timestamped folder: removed, while an earlier evaluation's stays as it was.
+    log_dir = tmp_path / "logs"
+    earlier = log_dir / "eval" / "runs" / "zero_velocity_synthetic" / "2000-01-01_00-00-00"
+    earlier.mkdir(parents=True)
+    (earlier / "results.json").write_text("{}")
+    proc = run_interrupted(
+        ("src.results", "tables_csv"), 0, "src.eval", *args,
+        data_dir=synthetic_data_dir, log_dir=log_dir,
+    )  # fmt: skip
+    line = _interrupted_line(proc)
+    assert "removed" in line, line
+    assert [p.relative_to(log_dir) for p in log_dir.rglob("*") if p.is_file()] == [
+        earlier.relative_to(log_dir) / "results.json"
+    ]
 
 
 @pytest.mark.slow

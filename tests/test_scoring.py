@@ -404,6 +404,46 @@ def test_each_bad_predictions_file_is_one_line_naming_the_fix(
     assert message in text, text
 
 
+@pytest.mark.parametrize(
+    ("layout", "axes"),
+    [("windows, columns, frames", (0, 2, 1)), ("frames, windows, columns", (1, 0, 2))],
+)
+def test_a_transposed_prediction_is_named_transposed(
+    layout, axes, srnn_windows, tmp_path, synthetic_data_dir
+):
+    """It was blamed on window_id (24 ids for 25 predictions) or on its number of columns."""
+    good = _zero_velocity(srnn_windows)
+    prediction = good["prediction"].transpose(axes)  # its own inverse, both of these
+    path = _save(tmp_path, {**good, "prediction": prediction})
+    with pytest.raises(PredictionsError) as info:
+        _evaluate(tmp_path, synthetic_data_dir, f"predictions={path}", "data=synthetic")
+    text = str(info.value)
+    assert str(path) in text and "transposed" in text and "window_id" not in text, text
+    assert str(prediction.shape) in text and "(24, 25, 99)" in text, text  # found, expected
+    assert f"transpose{axes}" in text, text  # the fix, which gives back the expected shape
+
+
+def test_a_prediction_in_degrees_is_refused_naming_the_unit_and_the_fix(
+    srnn_windows, tmp_path, synthetic_data_dir
+):
+    """Degrees were scored as radians without a word (about 10 rad at every horizon on
+    H3.6M). Exp-map angles of real motion stay within pi (at most 3.1416 in every frame of
+    the real archives); the root position, columns 0-2, is no angle and may be of any size."""
+    good = _zero_velocity(srnn_windows)
+    path = _save(tmp_path, {**good, "prediction": np.rad2deg(good["prediction"])}, "deg.npz")
+    with pytest.raises(PredictionsError) as info:
+        _evaluate(tmp_path, synthetic_data_dir, f"predictions={path}", "data=synthetic")
+    text = str(info.value)
+    assert str(path) in text and "\n" not in text
+    assert "degrees" in text and "np.deg2rad" in text, text
+    edge = good["prediction"].copy()
+    edge[..., :3] = 5000.0  # millimetres, say
+    edge[..., 6:9] = [np.pi, 0.0, 0.0]  # a used joint at the largest angle radians have
+    path = _save(tmp_path, {**good, "prediction": edge}, "edge.npz")
+    result, _ = _evaluate(tmp_path, synthetic_data_dir, f"predictions={path}", "data=synthetic")
+    assert result["tables"][0]["values"]
+
+
 def test_missing_file_and_conflicting_settings_are_refused(tmp_path, synthetic_data_dir):
     with pytest.raises(PredictionsError, match="predictions file not found: .*np.savez"):
         _evaluate(tmp_path, synthetic_data_dir, f"predictions={tmp_path}/no.npz", "data=synthetic")

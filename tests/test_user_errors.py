@@ -16,7 +16,7 @@ from omegaconf import OmegaConf
 
 from src.data.errors import DataError
 from src.lit.factory import ConfigError
-from tests.conftest import CONF, compose_config, run_in_one_process, run_module
+from tests.conftest import CONF, compose_config, run_in_one_process, run_interrupted, run_module
 
 
 def _error_line(proc) -> str:
@@ -74,6 +74,34 @@ def test_cli_damaged_archive_is_one_line(tmp_path):
     )
     line = _error_line(proc)
     assert member in line and "download h3.6m.zip again" in line
+
+
+def test_cli_ctrl_c_during_the_first_unpack_is_one_line_and_leaves_no_half_unpacked_data(
+    tmp_path,
+):
+    """Ctrl-C after the archive's first member is written: status 130, one line, no
+    traceback (there was one), and no folder the next run could take for the data: it
+    unpacks the archive whole."""
+    from src.data.archive import ensure_dataset
+
+    archive, data = tmp_path / "h3.6m.zip", tmp_path / "data"
+    members = {f"h3.6m/dataset/S1/walking_{i}.txt": ",".join([f"0.{i}"] * 99) for i in (1, 2)}
+    with zipfile.ZipFile(archive, "w") as zf:
+        for name, line in members.items():
+            zf.writestr(name, line + "\n")
+    proc = run_interrupted(
+        ("zipfile:ZipFile", "open"), 1, "src.eval", "model=zero_velocity", "data=h36m",
+        f"data.archive={archive}", data_dir=data, log_dir=tmp_path / "out",
+    )  # fmt: skip
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 130 and "Traceback" not in output, output[-3000:]
+    assert "unpacking" in proc.stdout  # interrupted there, not before
+    assert len([x for x in proc.stderr.splitlines() if "Ctrl-C" in x]) == 1, proc.stderr
+    assert list(data.iterdir()) == []  # no h3.6m/, no .h3.6m.unpacking-<pid>/
+    assert not list((tmp_path / "out").rglob("*.*"))
+    ensure_dataset("h36m", data, archive)
+    for name, line in members.items():
+        assert (data / name).read_text() == line + "\n"
 
 
 # ------------------------------------------------------------ row 6: nothing to train

@@ -35,6 +35,23 @@ def refuse(err: object) -> NoReturn:
     sys.exit(2)
 
 
+def stop_interrupted() -> NoReturn:
+    """What Ctrl-C ends a command with instead of a traceback: one line saying what became of
+    its run folder (nothing_left_if_refused tidied it unless the run had started), status 130
+    (128 + SIGINT, as a shell reports a Ctrl-C)."""
+    where = ""
+    if HydraConfig.initialized():
+        folder = Path(HydraConfig.get().runtime.output_dir)
+        if not folder.exists():
+            where = f"; its unfinished run folder {folder} was removed"
+        elif _claimed.get("tidied"):  # a folder named with hydra.run.dir, holding files before
+            where = f"; what it had written into {folder} was removed, the rest left as it was"
+        else:
+            where = f"; the run folder {folder} is kept"
+    print(f"interrupted (Ctrl-C){where}", file=sys.stderr)
+    sys.exit(130)
+
+
 def path_safe(text: str) -> str:
     """`text` with `_` for what stops Hydra's parser or a shell: a folder works in `ckpt_path=`."""
     return re.sub(r"[^A-Za-z0-9_.+@-]", "_", str(text))
@@ -111,16 +128,18 @@ def claim_run_folder(folder: str | os.PathLike, exact: bool = False) -> Path:
 
 @contextlib.contextmanager
 def nothing_left_if_refused(started: str | None = "config.yaml"):
-    """A user error raised inside removes what this process put into the run folder, unless
-    the run had started (its file `started` exists; None: never), and goes on."""
+    """A user error or a Ctrl-C raised inside removes what this process put into the run
+    folder, unless the run had started (its file `started` exists; None: never), and goes on:
+    a folder is complete or gone, never half-written."""
     try:
         yield
-    except USER_ERRORS:
+    except (*USER_ERRORS, KeyboardInterrupt):
         folder = Path(HydraConfig.get().runtime.output_dir)
         claimed = _claimed.get("folder")
         mine = claimed is not None and claimed.resolve() == folder.resolve()
         if not mine or (started and (folder / started).exists()):
             raise
+        _claimed["tidied"] = True
         for name in set(os.listdir(folder)) - _claimed["before"]:
             path = folder / name
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
