@@ -34,7 +34,9 @@ def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
         )
         paper = (published, label) if metric == "euler" else (None, None)
         args = (dm.actions, module.horizons, values, dm.absent_actions, *paper)
-        tables.append(result_table(f"{title}: {where}", metric, unit, *args))
+        # The model's untrained actions (its checkpoint's), a baseline's: this copy's.
+        untrained = module.untrained_actions
+        tables.append(result_table(f"{title}: {where}", metric, unit, *args, untrained=untrained))
     return tables
 
 

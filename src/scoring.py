@@ -227,6 +227,7 @@ class FilePredictor(MotionPredictor):
             optimizer=None,
             dim_rule=dim_rule,
             run_info={"config": config},
+            untrained_actions=dm.untrained_actions,  # of this copy, as for a baseline
         )
         row_of = {name: row for row, name in enumerate(preds.ids)}
         rows = [row_of[name] for name in window_ids(dm.eval_windows)]  # row i: eval window i

@@ -30,7 +30,7 @@ from src.cli import hydra_entry
 from src.lit import checkpoints as ck
 from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
 from src.lit.media_callback import FrameStripLogger
-from src.lit.predictor import NonFiniteLossError
+from src.lit.predictor import NonFiniteLossError, averages
 from src.lit.progress import ProgressLog
 from src.lit.resume import describe, prepare_training
 from src.lit.run_folders import holds_run
@@ -105,7 +105,9 @@ def train(cfg: DictConfig) -> float:
     )
     if trainer.is_global_zero:
         if not fast_dev_run:
-            add_error_curve_layout(logger.experiment, dm.actions, module.horizons)
+            evaluated = [a for a in dm.actions if a not in dm.absent_actions]
+            sets = averages(evaluated, module.untrained_actions)
+            add_error_curve_layout(logger.experiment, dm.actions, module.horizons, sets)
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()

@@ -212,8 +212,10 @@ class MotionDataModule(L.LightningDataModule):
         self._train_dataset = WindowDataset(
             seqs, [self.actions.index(e.action) for e in train], self.observed_len, self.future_len
         )
-        self.untrained_actions = [a for a in self.actions if all(e.action != a for e in train)]
-        if self.untrained_actions and not self._eval_only:
+        # Not known when evaluating a checkpoint (no training file is read): it carries its own.
+        if not self._eval_only:
+            self.untrained_actions = [a for a in self.actions if all(e.action != a for e in train)]
+        if self.untrained_actions:
             log.warning(
                 "no training file for action(s) %s: they are evaluated but never trained on",
                 ", ".join(self.untrained_actions),

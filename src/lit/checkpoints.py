@@ -129,19 +129,29 @@ class BestCheckpoint(ModelCheckpoint):
 
     def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         super().on_train_epoch_end(trainer, pl_module)  # saves the best of the epoch's validation
-        metrics, prefix = trainer.callback_metrics, "val_euler/average/"
+        metrics = trainer.callback_metrics
         if not trainer.is_global_zero or self.monitor not in metrics:
             return
-        horizons = ", ".join(
-            f"{int(k[len(prefix) : -2])} ms {float(v):.3f}"
-            for k, v in sorted(metrics.items())
-            if k.startswith(prefix)
-        )
         best, average = self.best_model_score, float(metrics[self.monitor])
         best = "no best" if best is None else f"best {best:.4f}: {Path(self.best_model_path).name}"
+        # Each average with its set where there are two (the module's averages()): an action
+        # without training files is in the first, not in the one src.report's verdict judges.
+        parts = []
+        for name, (_, words) in (pl_module.last_averages or {"average": ([], "")}).items():
+            prefix = f"val_euler/{name}/"
+            errors = {
+                int(k[len(prefix) : -2]): float(v)
+                for k, v in metrics.items()
+                if k.startswith(prefix)
+            }
+            # The monitored average is the mean of the first set's horizons, as this is.
+            mean = average if name == "average" else sum(errors.values()) / len(errors)
+            horizons = ", ".join(f"{ms} ms {v:.3f}" for ms, v in sorted(errors.items()))
+            over = f"over {words}: " if words else ""
+            parts.append(f"{over}{horizons}; average {mean:.4f}")
         log.info(
-            f"validation at iteration {pl_module.host_iteration}: Euler error {horizons}; "
-            f"average {average:.4f} ({best})"
+            f"validation at iteration {pl_module.host_iteration}: Euler error {parts[0]} ({best})"
+            + "".join(f"; {part}" for part in parts[1:])
         )
 
     def load_state_dict(self, state_dict: dict[str, Any]) -> None:

@@ -115,6 +115,7 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
         compile=compile_.get("enabled", False),
         compile_mode=compile_.get("mode", "reduce-overhead"),
         iterations=cfg.get("iterations"),
+        untrained_actions=dm.untrained_actions,
         **kwargs,
     )
 
@@ -141,6 +142,8 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
         pose_dim=normalizer.pose_dim,
         actions=actions,
         num_actions=len(actions),
+        # Of the data copy it was trained on (checkpoints before issue 53: unknown, none).
+        untrained_actions=motion.get("untrained_actions", []),
         **{k: getattr(data, k) for k in ("dataset_name", "conv_padding", "frame_ms")},
         **{k: saved.data[k] for k in ("observed_len", "future_len")},
     )

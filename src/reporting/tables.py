@@ -2,7 +2,8 @@
 results.{json,md,csv}, and the one markdown writer of every table. An action is evaluated or
 absent with its reason (printed "absent", never 0 or NaN); the average is over the evaluated
 actions (protocol §4.1 step 6), beside it the published one over the same actions, below it the
-paper's own over all of its actions.
+paper's own over all of its actions. Where an evaluated action has no training files, a second
+average leaves it out (the set src.report's verdict judges), and each row names its set.
 """
 
 from __future__ import annotations
@@ -14,10 +15,12 @@ from pathlib import Path
 import pandas as pd
 
 from src.lit.factory import ConfigError
+from src.lit.predictor import averages
 from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import ReportingError
 
 AVERAGE = "average"
+AVERAGE_TRAINED = "average_trained"  # over the evaluated actions with training files
 AS_PRINTED = "average_as_printed"
 RIGHT = ("n", "iterations", "seed", "best at", "wall time")
 
@@ -61,15 +64,33 @@ def results_from_metric(values, actions, frame_ms: float = 40, absent=None) -> d
 
 
 def result_table(
-    title, metric, unit, actions, horizons_ms, values, absent, published=None, published_label=None
+    title,
+    metric,
+    unit,
+    actions,
+    horizons_ms,
+    values,
+    absent,
+    published=None,
+    published_label=None,
+    untrained=(),
 ) -> dict:
-    """The table as results.json holds it; values and absent as results_from_metric gives them."""
+    """The table as results.json holds it; values and absent as results_from_metric gives them;
+    `untrained`: the actions without training files (the model's, or this copy's)."""
     horizons = [int(ms) for ms in horizons_ms]
     if not horizons:
         raise ReportingError(f"{title}: no horizons; the model predicts too few frames")
     evaluated, pub = [a for a in actions if a in values], published is not None
     text = lambda row: {str(ms): float(v) for ms, v in row.items()}  # noqa: E731
-    average = {ms: sum(values[a][ms] for a in evaluated) / len(evaluated or [0]) for ms in horizons}
+
+    def mean(over: list[str]) -> dict:
+        return {ms: sum(values[a][ms] for a in over) / len(over) for ms in horizons}
+
+    # results.json's keys before issue 53 unchanged; the second average is a key of its own.
+    trained = averages(evaluated, untrained).get(AVERAGE_TRAINED, (None,))[0]
+    if trained:
+        same = text(same_set_average(published, trained, horizons)) if pub else None
+        trained = {"actions": trained, "values": text(mean(trained)), "published_same_set": same}
     return {
         "title": title,
         "metric": metric,
@@ -79,12 +100,14 @@ def result_table(
         "horizons_ms": horizons,
         "values": {a: text(values[a]) for a in evaluated},
         "absent": dict(absent),
-        "average": {"actions": evaluated, "values": text(average)} if evaluated else None,
+        "average": {"actions": evaluated, "values": text(mean(evaluated))} if evaluated else None,
         "published": {a: text(r) for a, r in published.items()} if pub else None,
         "published_label": published_label if pub else None,
         "published_same_set": text(same_set_average(published, evaluated, horizons))
         if pub
         else None,
+        "untrained_actions": [a for a in actions if a in untrained],
+        AVERAGE_TRAINED: trained,
     }
 
 
@@ -103,6 +126,13 @@ def table_frame(table: dict) -> pd.DataFrame:
         rows += [
             (AVERAGE, ms, v, same.get(ms), note) for ms, v in table["average"]["values"].items()
         ]
+        if trained := table.get(AVERAGE_TRAINED):
+            same = trained["published_same_set"] or {}
+            note = f"mean over the {len(trained['actions'])} evaluated actions with training "
+            note += f"files ({', '.join(trained['actions'])})"
+            rows += [
+                (AVERAGE_TRAINED, ms, v, same.get(ms), note) for ms, v in trained["values"].items()
+            ]
         n = len(set(published) - {AVERAGE})
         scope = f"the paper's own average, over all {n or 'of its'} actions"
         printed = published.get(AVERAGE, {})
@@ -117,6 +147,10 @@ def table_markdown(table: dict) -> str:
     has_published = table.get("published") is not None
     reasons = list(dict.fromkeys(table["absent"].values()))
     names = {AVERAGE: f"**{AVERAGE}**", AS_PRINTED: "published average, as printed"}
+    average, untrained = table["average"], table.get("untrained_actions", [])
+    sets = averages(average["actions"], untrained) if average else {}
+    # With two averages, each row names its set.
+    names |= {n: f"**{AVERAGE} ({words})**" for n, (_, words) in sets.items() if words}
     names |= {a: f"{a} [{reasons.index(r) + 1}]" for a, r in table["absent"].items()}
 
     # A cell: ours (published), "absent", or the paper's own average alone (value "").
@@ -136,13 +170,19 @@ def table_markdown(table: dict) -> str:
             "where the paper has no number. Beside our average: the paper's values averaged "
             "over the same evaluated actions, like for like."
         )
-    average = table["average"]
     lines.append(
         f"- Average: mean over the {len(average['actions'])} evaluated actions "
         f"({', '.join(average['actions'])})."
         if average
         else "- Average: no action was evaluated, so there is no average."
     )
+    if AVERAGE_TRAINED in sets:
+        trained, words = sets[AVERAGE_TRAINED]
+        lines.append(
+            f"- Average ({words}): mean over the evaluated actions with training files "
+            f"({', '.join(trained)}), the set src.report's verdict judges "
+            f"({', '.join(untrained)}: no training files)."
+        )
     for k, reason in enumerate(reasons, 1):
         who = [a for a in table["actions"] if table["absent"].get(a) == reason]
         lines.append(f"- [{k}] absent ({', '.join(who)}): {reason}")

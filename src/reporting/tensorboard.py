@@ -7,12 +7,16 @@ from pathlib import Path
 AVERAGE_TAG = "val_euler/average/"
 
 
-def add_error_curve_layout(writer, actions: list[str], horizons) -> None:
-    """Custom scalars: a chart per metric and action (and the average), a line per horizon."""
+def add_error_curve_layout(writer, actions: list[str], horizons, averages=None) -> None:
+    """Custom scalars: a chart per metric and action (and average), a line per horizon.
+    `averages`: src.lit.predictor.averages() of the run; a chart's title names its set where
+    there are two (the tag stays `average`: validation_curve reads old runs by it)."""
+    titles = {n: f"average ({words})" if words else n for n, (_, words) in (averages or {}).items()}
+    charts = {"average": "average"} | titles | {a: a for a in actions}
     layout = {
         f"val {m} error per horizon": {
-            a: ["Multiline", [f"val_{m}/{a}/{ms:04d}ms" for ms in horizons]]
-            for a in ["average", *actions]
+            title: ["Multiline", [f"val_{m}/{tag}/{ms:04d}ms" for ms in horizons]]
+            for tag, title in charts.items()
         }
         for m in ("euler", "mpjpe")
     }
