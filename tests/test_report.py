@@ -566,6 +566,8 @@ def test_an_action_without_training_files_is_marked_and_left_out_of_the_judged_a
     results = Results(group_runs([run]))
     head, notes, why = headline_table(results, "srnn", TARGETS, None)
     judged = row_of(head, "li2018_cmu¹")
+    # Each row names its set, as training's TensorBoard charts and src.eval's table do.
+    assert judged[3] == "ours, best, 7 trained actions"
     all_actions = row_of(head, "", "", "4,000", "ours, best, all 8 actions")
     published, _ = published_for({"paper": "li2018", "method": "conv_s2s"}, "cmu")
     trained = [a for a in published if a not in (AVERAGE, "washwindow")]

@@ -108,7 +108,13 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
         for all_actions in (False, True) if untrained else (False,):
             for s in SELECTIONS:
                 first = (label, group.dataset) if (s, all_actions) == ("best", False) else ("", "")
-                what = f"ours, {s}" + f", all {len(everything)} actions" * all_actions
+                # The set named as training's TensorBoard and src.eval name it.
+                which = (
+                    f"all {len(everything)} actions"
+                    if all_actions
+                    else (f"{len(judged_actions)} trained actions")
+                )
+                what = f"ours, {s}" + f", {which}" * bool(untrained)
                 cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
                 rows.append([*first, budget, what, n, *cells, "" if first[0] == "" else verdict])
         for ref in results.references(group):
