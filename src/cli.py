@@ -24,6 +24,7 @@ from src.lit.factory import PROJECT_ROOT
 from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse
 
 CONF_DIR = PROJECT_ROOT / "conf"
+log = logging.getLogger(__name__)
 no_tips = lambda record: not str(record.msg).startswith("💡 Tip")  # noqa: E731
 
 
@@ -68,6 +69,9 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
                 with nothing_left_if_refused(started) if tidy else contextlib.nullcontext():
                     return fn(cfg)
             except USER_ERRORS as err:
+                # Into the run's log too: its folder stays when the run had begun, and a
+                # sweep job's always (train.log said nothing of why the run ended).
+                log.error("error: %s", err, extra={"refusal": True})
                 refuse(err)
 
         @functools.wraps(fn)

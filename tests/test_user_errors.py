@@ -108,6 +108,32 @@ def test_training_a_running_average_is_refused(overrides, train_cfg):
         prepare_training(train_cfg(*overrides), [], {})
 
 
+# ------------------------------------------------------------ a refusal in the run's train.log
+def test_a_model_that_cannot_be_built_says_why_in_its_run_folders_train_log(
+    tmp_path, synthetic_data_dir
+):
+    """A sweep job's folder stays when the job is refused (as does a run's that had begun);
+    its train.log used to end without the error. The network is built only once the data is
+    loaded (it needs the pose size), so this refusal comes in the job, not before the sweep."""
+    proc = run_module(
+        "src.train",
+        "hydra.mode=MULTIRUN",
+        "model=residual_mlp",
+        "model.net.hidden=0",
+        "data=synthetic",
+        "iterations=2",
+        "val_every=2",
+        data_dir=synthetic_data_dir,
+        log_dir=tmp_path,
+    )
+    message = _error_line(proc).removeprefix("error: ")
+    assert "hidden=0" in message and "must be >= 1" in message, message  # value and fix
+    (log,) = tmp_path.glob("train/multiruns/*/0_*/train.log")
+    assert message in log.read_text()
+    # On the console once: printed by the refusal, not logged there again.
+    assert (proc.stdout + proc.stderr).count(message) == 1
+
+
 # ------------------------------------------------------------ row 7: published numbers, titles
 def test_published_numbers_only_beside_results_on_their_dataset():
     from src.reporting.published import published_for

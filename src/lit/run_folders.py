@@ -6,6 +6,7 @@ later (a misspelt action) removes the folder made for it."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import re
 import shutil
@@ -38,6 +39,14 @@ def refuse(err: object) -> NoReturn:
     """What a user sees instead of a traceback: `error: <what is wrong and the fix>`, status 2."""
     print(f"error: {err}", file=sys.stderr)
     sys.exit(2)
+
+
+class PrintedByRefuse(logging.Filter):
+    """For the console handler (conf/hydra/default.yaml): a refusal logged for the run's
+    train.log (`extra={"refusal": True}`) is on the console already, printed by `refuse`."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not getattr(record, "refusal", False)
 
 
 def path_safe(text: str) -> str:
