@@ -273,6 +273,46 @@ def test_allow_partial_beside_a_checkpoint_is_taken(entry, tmp_path, monkeypatch
     assert cfg.paths.allow_partial is True and cfg.get("data") is None
 
 
+def test_allow_partial_is_named_alike_everywhere_and_taken_as_named(
+    help_text, tmp_path, monkeypatch
+):
+    """`src.train --help` named paths.allow_partial=true, the docs and the data's own warning
+    data.allow_partial=true. One key is named in every --help, the README and docs and the
+    refusal of a partial copy; given on each entry point's command line, the data takes it."""
+    from src.cli import hydra_entry
+    from src.data.h36m import H36MDataModule
+    from src.data.synthetic import SyntheticDataModule
+    from tests.conftest import ROOT
+
+    SyntheticDataModule(tmp_path / "copy").prepare_data()
+    (tmp_path / "copy" / "synthetic" / "h3.6m/dataset/S5/eating_2.txt").unlink()
+    with pytest.raises(DataError) as refusal:
+        H36MDataModule(tmp_path / "copy" / "synthetic", train_subjects=(1,)).prepare_data()
+    texts = [str(refusal.value), (ROOT / "README.md").read_text()]
+    texts += [p.read_text() for p in sorted((ROOT / "docs").glob("*.md"))]
+    texts += [help_text(f"src.{e}") for e in ("train", "eval", "visualize", "export_windows")]
+    named = {key for text in texts for key in re.findall(r"([\w.]*allow_partial)=", text)}
+    assert len(named) == 1, named
+    (key,) = named
+
+    monkeypatch.delenv("MOTION_ALLOW_PARTIAL", raising=False)
+    for entry, chosen in [
+        ("train", ["data=synthetic"]),
+        ("eval", ["model=zero_velocity", "data=synthetic"]),
+        ("eval", ["ckpt_path=a.ckpt"]),  # the checkpoint's data config takes paths.*
+        ("visualize", ["ckpt_path=a.ckpt"]),
+        ("export_windows", ["data=synthetic"]),
+    ]:
+        called = []
+        main = hydra_entry(entry)(lambda cfg, called=called: called.append(cfg))
+        argv = [entry, *chosen, f"{key}=true", f"paths.log_dir={tmp_path / 'out'}"]
+        monkeypatch.setattr(sys, "argv", argv)
+        main()
+        (cfg,) = called
+        taken = cfg.data.allow_partial if cfg.get("data") else cfg.paths.allow_partial
+        assert taken is True, (entry, chosen)
+
+
 @pytest.mark.parametrize(("value", "expected"), [(None, False), ("true", True), ("false", False)])
 def test_allow_partial_defaults_from_the_environment(value, expected, tmp_path, monkeypatch):
     """The README's quick start exports MOTION_ALLOW_PARTIAL=true once, beside MOTION_ARCHIVES,
