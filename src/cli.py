@@ -24,6 +24,7 @@ from src.lit.factory import PROJECT_ROOT
 from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse, stop_interrupted
 
 CONF_DIR = PROJECT_ROOT / "conf"
+log = logging.getLogger(__name__)
 # Lightning's advertisements for its cloud products, and its Ctrl-C line, which ours replaces.
 LIGHTNING_NOISE = ("💡 Tip", "Detected KeyboardInterrupt")
 no_tips = lambda record: not str(record.msg).lstrip().startswith(LIGHTNING_NOISE)  # noqa: E731
@@ -82,6 +83,9 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
                 with nothing_left_if_refused(started) if tidy else contextlib.nullcontext():
                     return lightning_interrupt_raised(fn, cfg)
             except USER_ERRORS as err:
+                # Into the run's log too: its folder stays when the run had begun, and a
+                # sweep job's always (train.log said nothing of why the run ended).
+                log.error("error: %s", err, extra={"refusal": True})
                 refuse(err)
             except KeyboardInterrupt:
                 stop_interrupted()

@@ -573,7 +573,7 @@ def test_row_12_train_help_is_written_and_lists_every_group_from_conf(help_text)
     assert set(listed) == {g for g in _groups() if g not in ("paths", "hydra")}
     for group, options in listed.items():
         assert options.split(", ") == _options(group), group
-    for key in ("iterations=", "val_every=", "seed=", "paths.allow_partial=", "resume=",
+    for key in ("iterations=", "val_every=", "seed=", "data.allow_partial=", "resume=",
                 "model.optimizer.lr=", "+trainer.precision=", "--cfg job"):  # fmt: skip
         assert key in text, key
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from tests.conftest import run_module
+from tests.conftest import run_in_one_process, run_module
 
 # A timestamped sweep folder: a second sweep gets its own, nothing is written over.
 SWEEP_DIR = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}")
@@ -144,3 +144,35 @@ def test_diverged_run_in_a_sweep_scores_inf_and_the_sweep_goes_on(tmp_path, synt
     )
     assert single.returncode == 2
     assert "non-finite loss" in single.stderr
+
+
+def _error_line(proc) -> str:
+    """The one `error: ...` line of a command refused the project's way (status 2)."""
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
+    return line
+
+
+def test_a_bad_value_of_any_job_refuses_the_sweep_before_its_first_job(
+    tmp_path, synthetic_data_dir
+):
+    """`-m iterations=2,-2` used to train job 0, then refuse job 1: with real budgets, hours
+    lost. Every job's config is checked as a single run's is, before the first starts; with
+    Optuna, the fixed values that every trial shares."""
+    base = ["model=gru_s2s", "model.net.hidden=16", "data=synthetic", "val_every=2"]
+    basic, optuna = run_in_one_process(
+        ["src.train", MULTIRUN, *base, "iterations=2,-2", f"paths.log_dir={tmp_path / 'b'}"],
+        ["src.train", MULTIRUN, "hparams_search=conv_s2s_optuna", "data=synthetic",
+         "iterations=-2", "val_every=2", f"paths.log_dir={tmp_path / 'o'}"],
+        data_dir=synthetic_data_dir, log_dir=None,
+    )  # fmt: skip
+    # No job started: no checkpoint, no run folder.
+    assert not list(tmp_path.rglob("*.ckpt")) and not list(tmp_path.rglob("train.log"))
+    assert "Launching" not in basic.stdout + basic.stderr
+    line = _error_line(basic)
+    # The job by its number and overrides (job 0, iterations=2, is fine), the bad value and
+    # what it must be.
+    overrides = line.split("(", 1)[1].split(")", 1)[0].split()
+    assert "job 1" in line and {"iterations=-2", *base} <= set(overrides), line
+    assert "iterations=-2 must be >= 1" in line, line
+    assert "iterations=-2 must be >= 1" in _error_line(optuna)

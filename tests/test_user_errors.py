@@ -136,6 +136,32 @@ def test_training_a_running_average_is_refused(overrides, train_cfg):
         prepare_training(train_cfg(*overrides), [], {})
 
 
+# ------------------------------------------------------------ a refusal in the run's train.log
+def test_a_model_that_cannot_be_built_says_why_in_its_run_folders_train_log(
+    tmp_path, synthetic_data_dir
+):
+    """A sweep job's folder stays when the job is refused (as does a run's that had begun);
+    its train.log used to end without the error. The network is built only once the data is
+    loaded (it needs the pose size), so this refusal comes in the job, not before the sweep."""
+    proc = run_module(
+        "src.train",
+        "hydra.mode=MULTIRUN",
+        "model=residual_mlp",
+        "model.net.hidden=0",
+        "data=synthetic",
+        "iterations=2",
+        "val_every=2",
+        data_dir=synthetic_data_dir,
+        log_dir=tmp_path,
+    )
+    message = _error_line(proc).removeprefix("error: ")
+    assert "hidden=0" in message and "must be >= 1" in message, message  # value and fix
+    (log,) = tmp_path.glob("train/multiruns/*/0_*/train.log")
+    assert message in log.read_text()
+    # On the console once: printed by the refusal, not logged there again.
+    assert (proc.stdout + proc.stderr).count(message) == 1
+
+
 # ------------------------------------------------------------ row 7: published numbers, titles
 def test_published_numbers_only_beside_results_on_their_dataset():
     from src.reporting.published import published_for
@@ -273,6 +299,46 @@ def test_allow_partial_beside_a_checkpoint_is_taken(entry, tmp_path, monkeypatch
     main()
     (cfg,) = called
     assert cfg.paths.allow_partial is True and cfg.get("data") is None
+
+
+def test_allow_partial_is_named_alike_everywhere_and_taken_as_named(
+    help_text, tmp_path, monkeypatch
+):
+    """`src.train --help` named paths.allow_partial=true, the docs and the data's own warning
+    data.allow_partial=true. One key is named in every --help, the README and docs and the
+    refusal of a partial copy; given on each entry point's command line, the data takes it."""
+    from src.cli import hydra_entry
+    from src.data.h36m import H36MDataModule
+    from src.data.synthetic import SyntheticDataModule
+    from tests.conftest import ROOT
+
+    SyntheticDataModule(tmp_path / "copy").prepare_data()
+    (tmp_path / "copy" / "synthetic" / "h3.6m/dataset/S5/eating_2.txt").unlink()
+    with pytest.raises(DataError) as refusal:
+        H36MDataModule(tmp_path / "copy" / "synthetic", train_subjects=(1,)).prepare_data()
+    texts = [str(refusal.value), (ROOT / "README.md").read_text()]
+    texts += [p.read_text() for p in sorted((ROOT / "docs").glob("*.md"))]
+    texts += [help_text(f"src.{e}") for e in ("train", "eval", "visualize", "export_windows")]
+    named = {key for text in texts for key in re.findall(r"([\w.]*allow_partial)=", text)}
+    assert len(named) == 1, named
+    (key,) = named
+
+    monkeypatch.delenv("MOTION_ALLOW_PARTIAL", raising=False)
+    for entry, chosen in [
+        ("train", ["data=synthetic"]),
+        ("eval", ["model=zero_velocity", "data=synthetic"]),
+        ("eval", ["ckpt_path=a.ckpt"]),  # the checkpoint's data config takes paths.*
+        ("visualize", ["ckpt_path=a.ckpt"]),
+        ("export_windows", ["data=synthetic"]),
+    ]:
+        called = []
+        main = hydra_entry(entry)(lambda cfg, called=called: called.append(cfg))
+        argv = [entry, *chosen, f"{key}=true", f"paths.log_dir={tmp_path / 'out'}"]
+        monkeypatch.setattr(sys, "argv", argv)
+        main()
+        (cfg,) = called
+        taken = cfg.data.allow_partial if cfg.get("data") else cfg.paths.allow_partial
+        assert taken is True, (entry, chosen)
 
 
 @pytest.mark.parametrize(("value", "expected"), [(None, False), ("true", True), ("false", False)])

@@ -164,7 +164,7 @@ class MotionDataModule(L.LightningDataModule):
                 "\n  " + "\n  ".join(missing) + "\nThe full protocol needs all of them. Fix: get "
                 f"the complete archive (download {spec.source} ({spec.url})), delete "
                 f"{self.data_dir / spec.root} and run again; or, for a copy that stays partial, "
-                "export MOTION_ALLOW_PARTIAL=true (or paths.allow_partial=true) to use the files "
+                "export MOTION_ALLOW_PARTIAL=true (or data.allow_partial=true) to use the files "
                 "that exist and report the actions that cannot be evaluated as absent."
             )
         return train, test

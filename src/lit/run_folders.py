@@ -6,6 +6,7 @@ later (a misspelt action) removes the folder made for it."""
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import re
 import shutil
@@ -13,7 +14,12 @@ import sys
 from pathlib import Path
 from typing import NoReturn
 
+import hydra
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
@@ -50,6 +56,14 @@ def stop_interrupted() -> NoReturn:
             where = f"; the run folder {folder} is kept"
     print(f"interrupted (Ctrl-C){where}", file=sys.stderr)
     sys.exit(130)
+
+
+class PrintedByRefuse(logging.Filter):
+    """For the console handler (conf/hydra/default.yaml): a refusal logged for the run's
+    train.log (`extra={"refusal": True}`) is on the console already, printed by `refuse`."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not getattr(record, "refusal", False)
 
 
 def path_safe(text: str) -> str:
@@ -199,8 +213,13 @@ class PrepareRun(Callback):
                 if group in config.hydra.runtime.choices and group not in given:
                     config.hydra.runtime.choices[group] = option
 
-    def on_multirun_start(self, config: DictConfig, **kwargs) -> None:
-        """A sweep's folder is claimed the same way; its jobs, numbered, cannot collide."""
+    def on_multirun_start(
+        self, config: DictConfig, config_name: str | None = None, **kwargs
+    ) -> None:
+        """Every job's config is checked before the first starts; the sweep's folder is claimed
+        the same way as a run's; its jobs, numbered, cannot collide."""
+        if config_name == "train":
+            check_sweep(config)
         if _given(config, "hydra.sweep.dir"):
             return
         folder = _claim(config, "hydra.sweep.dir")
@@ -208,3 +227,50 @@ class PrepareRun(Callback):
             config.hydra.sweep.dir = str(folder)
             # Each job's config is composed again from these (Hydra's load_sweep_config).
             config.hydra.overrides.hydra.append(f'hydra.sweep.dir="{folder}"')
+
+
+BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
+
+
+def sweep_jobs(config: DictConfig) -> tuple[list[list[str]], bool]:
+    """The override lists of the jobs the sweep `config` will launch, and whether they are all
+    of them: the basic sweeper's, expanded as it expands them; another sweeper (Optuna) draws
+    its values as the study goes, so one list: the command line's fixed values, every trial's."""
+    arguments = list(config.hydra.overrides.task)
+    parser = OverridesParser.create(config_loader=GlobalHydra.instance().config_loader())
+    sweeper = hydra.utils.get_class(config.hydra.sweeper._target_)
+    # By name: Hydra's plugin discovery imports its sweepers' modules again (other classes).
+    if BASIC_SWEEPER in {f"{c.__module__}.{c.__qualname__}" for c in sweeper.__mro__}:
+        params = config.hydra.sweeper.get("params") or {}
+        parsed = parser.parse_overrides([f"{k}={v}" for k, v in params.items()] + arguments)
+        (jobs,) = BasicSweeper.split_arguments(parsed, max_batch_size=None)
+        return jobs, True
+    parsed = parser.parse_overrides(arguments)
+    fixed = [f"{o.get_key_element()}={o.get_value_element_as_str()}" for o in parsed
+             if not o.is_sweep_override()]  # fmt: skip
+    return [fixed], False
+
+
+def check_sweep(config: DictConfig) -> None:
+    """Refuse a training sweep, before its first job, if any job's config would be refused:
+    each is composed as its launcher will compose it and checked as a single run is
+    (prepare_training). Otherwise job 5's bad value stops the sweep hours in, after jobs 0-4."""
+    jobs, expanded = sweep_jobs(config)
+    loader = GlobalHydra.instance().config_loader()
+    for num, overrides in enumerate(jobs):
+        try:
+            job = loader.load_sweep_config(config, list(overrides))
+        except HydraException:
+            # The basic sweeper composes each job again before the first starts and the CLI
+            # words its error; Optuna's fixed values composed already (the sweep's config).
+            return
+        task = OmegaConf.masked_copy(job, [k for k in job if k != "hydra"])
+        choices = OmegaConf.to_container(job.hydra.runtime.choices)
+        try:
+            prepare_training(task, list(overrides), choices)
+        except USER_ERRORS as err:
+            which = f"job {num} of the sweep's {len(jobs)}" if expanded else "every trial"
+            refuse(
+                f"{which} ({' '.join(overrides) or 'no overrides'}) would be refused, so no "
+                f"job of the sweep was started: {err}"
+            )
