@@ -7,9 +7,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# 155-190 s on 2 cores, a quarter of the default run: with the other end-to-end checks.
+@pytest.mark.slow
 def test_benchmark_smoke_writes_json(tmp_path):
     out, md = tmp_path / "bench.json", tmp_path / "perf.md"
     proc = subprocess.run(
