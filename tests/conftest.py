@@ -67,6 +67,8 @@ def run_module(module: str, *args: str, data_dir: Path, log_dir: Path, timeout: 
 CTRL_C_AT = """
 import os, pkgutil, runpy, signal, sys, time
 owner, name, after, module = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+# As in a terminal: a pytest-xdist worker ignores SIGINT, and its children inherit that.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 target = pkgutil.resolve_name(owner)
 original, calls = getattr(target, name), []
 def ctrl_c(*args, **kwargs):
