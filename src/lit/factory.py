@@ -142,7 +142,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
         pose_dim=normalizer.pose_dim,
         actions=actions,
         num_actions=len(actions),
-        # Of the data copy it was trained on (checkpoints before issue 53: unknown, none).
+        # Of the data copy it was trained on (older checkpoints lack it: none known).
         untrained_actions=motion.get("untrained_actions", []),
         **{k: getattr(data, k) for k in ("dataset_name", "conv_padding", "frame_ms")},
         **{k: saved.data[k] for k in ("observed_len", "future_len")},

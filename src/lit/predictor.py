@@ -54,7 +54,7 @@ def averages(evaluated: list[str], untrained) -> dict[str, tuple[list[str], str]
     """{name: (its actions, its set in words)} of the averages over evaluated actions that
     TensorBoard, the validation line and src.eval show: `average` over all of them, and, where
     some has no training files, `average_trained` over the others, the set src.report's verdict
-    judges (issue 53); with one set only its words are '' (a plain "average")."""
+    judges; with one set only its words are '' (a plain "average")."""
     trained = [a for a in evaluated if a not in untrained]
     if not trained or len(trained) == len(evaluated):
         return {"average": (list(evaluated), "")}

@@ -86,7 +86,7 @@ def result_table(
     def mean(over: list[str]) -> dict:
         return {ms: sum(values[a][ms] for a in over) / len(over) for ms in horizons}
 
-    # results.json's keys before issue 53 unchanged; the second average is a key of its own.
+    # results.json's earlier keys unchanged (older readers); the second average has its own.
     trained = averages(evaluated, untrained).get(AVERAGE_TRAINED, (None,))[0]
     if trained:
         same = text(same_set_average(published, trained, horizons)) if pub else None
