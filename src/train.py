@@ -14,7 +14,6 @@ import logging
 import math
 import os
 import time
-import warnings
 from pathlib import Path
 
 import lightning as L
@@ -30,10 +29,11 @@ from src.cli import hydra_entry
 from src.lit import checkpoints as ck
 from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
 from src.lit.media_callback import FrameStripLogger
-from src.lit.predictor import NonFiniteLossError, averages
+from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog
 from src.lit.resume import describe, prepare_training
 from src.lit.run_folders import holds_run
+from src.metrics.averages import averages
 from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
@@ -65,7 +65,7 @@ def train(cfg: DictConfig) -> float:
         ck.require_resumable(ckpt, cfg.ckpt_path)
         ck.check_compatible(ckpt, cfg, cfg.ckpt_path)
         ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
-        done = int(ckpt["state_dict"]["iteration"])
+        done = int(ckpt["global_step"])
         if done >= cfg.iterations:
             raise ConfigError(
                 f"{cfg.ckpt_path} is at iteration {done} and the run is {cfg.iterations} "
@@ -81,7 +81,7 @@ def train(cfg: DictConfig) -> float:
         "commit": git_commit(),
         "missing_files": list(dm.missing_files),
     }
-    module = build_module(cfg, dm, run_info=run_info)  # it stops at cfg.iterations
+    module = build_module(cfg, dm, run_info=run_info)
 
     # fast_dev_run swaps the logger for a dummy, but logger.experiment would write events.
     fast_dev_run = bool(cfg.trainer.get("fast_dev_run"))
@@ -97,9 +97,10 @@ def train(cfg: DictConfig) -> float:
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
     trainer: L.Trainer = build_trainer(
         cfg.trainer,
-        # An epoch is `val_every` iterations (a multiple: config.py); the module also stops at
-        # `iterations`. A finite count lets the progress bar say "Epoch 3/9", not "Epoch 3/-2".
-        max_epochs=cfg.iterations // cfg.val_every,
+        # The schedule: one iteration is one step, the training batches an endless stream.
+        max_steps=cfg.iterations,
+        val_check_interval=cfg.val_every,
+        check_val_every_n_epoch=None,
         logger=logger,
         callbacks=[timer, checkpoints, last, LearningRateMonitor("step"), *callbacks],
     )
@@ -111,10 +112,7 @@ def train(cfg: DictConfig) -> float:
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()
-    with warnings.catch_warnings():
-        # False here: the training sampler continues a resumed epoch at the exact batch.
-        warnings.filterwarnings("ignore", message=".*your dataloader is not resumable")
-        trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
+    trainer.fit(module, datamodule=dm, ckpt_path=cfg.ckpt_path)
     wall = time.perf_counter() - start
 
     metrics = trainer.callback_metrics
@@ -128,7 +126,7 @@ def train(cfg: DictConfig) -> float:
             "best_checkpoint": best_path,
             "last_checkpoint": str(last.path),
             **{f"final_val_{k}": value for k, value in final.items()},
-            "iterations": int(module.iteration),
+            "iterations": trainer.global_step,
             "wall_time_s": round(wall, 1),  # this process's
             "train_time_s": round(timer.time_elapsed("train"), 1) if total_known else None,
             "resumed_at": done,

@@ -170,8 +170,20 @@ class _Batches(torch.utils.data.Dataset):
         return self.batches[i]
 
 
+def with_d_windows(batch: dict[str, torch.Tensor]) -> dict:
+    """A flat batch of 2n windows as an adversarial iteration's: the first n the
+    discriminator's (under "d"), the other n the generator's."""
+    d, g = {}, {}
+    for k, v in batch.items():
+        d[k], g[k] = v.chunk(2)
+    return {**g, "d": d}
+
+
 def train_steps(built, batches: list[dict[str, torch.Tensor]], seed: int = 0) -> Trace:
-    """Train `built` one iteration per batch (CPU, no validation); what it stepped with."""
+    """Train `built` one iteration per batch (CPU, no validation); what it stepped with. With
+    the regulariser a flat batch is split by `with_d_windows`."""
+    if built.adversarial:
+        batches = [b if "d" in b else with_d_windows(b) for b in batches]
     trace = Trace()
     trainer = L.Trainer(
         accelerator="cpu",

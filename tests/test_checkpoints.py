@@ -53,7 +53,7 @@ def rising_error(monkeypatch):
 
     def rising(self, metrics, **kwargs):
         if "val/euler_avg" in metrics:
-            metrics = {**metrics, "val/euler_avg": float(self.iteration)}
+            metrics = {**metrics, "val/euler_avg": float(self.global_step)}
         return original(self, metrics, **kwargs)
 
     monkeypatch.setattr(MotionPredictor, "log_dict", rising)
@@ -67,7 +67,7 @@ def falling_error(monkeypatch):
 
     def falling(self, metrics, **kwargs):
         if "val/euler_avg" in metrics:
-            metrics = {**metrics, "val/euler_avg": 100.0 - float(self.iteration)}
+            metrics = {**metrics, "val/euler_avg": 100.0 - float(self.global_step)}
         return original(self, metrics, **kwargs)
 
     monkeypatch.setattr(MotionPredictor, "log_dict", falling)
@@ -81,7 +81,7 @@ def best_at_the_second_validation(monkeypatch):
 
     def scripted(self, metrics, **kwargs):
         if "val/euler_avg" in metrics:
-            metrics = {**metrics, "val/euler_avg": errors[int(self.iteration)]}
+            metrics = {**metrics, "val/euler_avg": errors[self.global_step]}
         return original(self, metrics, **kwargs)
 
     monkeypatch.setattr(MotionPredictor, "log_dict", scripted)
@@ -103,11 +103,11 @@ def test_last_ckpt_is_the_last_iteration_when_the_error_rises(
     out = tmp_path / "run"
     score, summary = _run(out, synthetic_data_dir, "iterations=8", "val_every=2")
     last = _load(out / "checkpoints" / LAST)
-    assert int(last["state_dict"]["iteration"]) == 8 and last["epoch"] == 3
+    assert last["global_step"] == 8
     # The best is the first validation (iteration 2), kept lean beside it.
     (best,) = (out / "checkpoints").glob("best-*.ckpt")
     assert best.name == "best-iter000002.ckpt"  # named by its iteration
-    assert int(_load(best)["state_dict"]["iteration"]) == 2
+    assert _load(best)["global_step"] == 2
     assert score == summary["best_val_euler_avg"] == 2.0
     assert summary["best_checkpoint"] == str(best) and summary["last_checkpoint"] == str(
         out / "checkpoints" / LAST
@@ -119,7 +119,7 @@ def test_checkpoint_every_writes_last_between_validations(tmp_path, synthetic_da
     original = LastCheckpoint.save
 
     def spy(self, trainer, pl_module):
-        seen.append(int(pl_module.iteration))
+        seen.append(pl_module.global_step)
         original(self, trainer, pl_module)
 
     mp = pytest.MonkeyPatch()
@@ -224,7 +224,7 @@ def test_last_checkpoint_write_is_atomic_inside_training(
     cfg = compose_config("train", [*TINY, "iterations=4", "val_every=2"], out, synthetic_data_dir)
     with pytest.raises(OSError, match="killed mid-write"):
         train(cfg)
-    assert int(read_checkpoint(out / "checkpoints" / LAST)["state_dict"]["iteration"]) == 2
+    assert read_checkpoint(out / "checkpoints" / LAST)["global_step"] == 2
 
 
 def test_best_survives_a_resume(rising_error, tmp_path, synthetic_data_dir):
@@ -246,7 +246,7 @@ def test_best_survives_a_resume(rising_error, tmp_path, synthetic_data_dir):
     assert not list((second / "checkpoints").glob("best-*.ckpt"))
     assert summary["best_checkpoint"] == str(best_first) and score == 2.0
     assert sorted(p.name for p in (first / "checkpoints").iterdir()) == before
-    assert int(_load(second / "checkpoints" / LAST)["state_dict"]["iteration"]) == 8
+    assert _load(second / "checkpoints" / LAST)["global_step"] == 8
 
 
 def test_a_better_best_after_a_resume_deletes_nothing_of_the_earlier_folder(
@@ -294,7 +294,6 @@ def test_a_best_checkpoint_of_the_earlier_naming_carries_over_a_resume(
 ):
     """Runs of earlier versions named the best file by Lightning's epoch (best-epoch000.ckpt):
     resuming such a run keeps it as the best, and it loads for evaluation."""
-    from src.lit.factory import load_trained
 
     first = tmp_path / "first"
     _run(first, synthetic_data_dir, "iterations=2", "val_every=2")
@@ -311,7 +310,7 @@ def test_a_best_checkpoint_of_the_earlier_naming_carries_over_a_resume(
         f"ckpt_path={first / 'checkpoints' / LAST}",
     )  # fmt: skip
     assert summary["best_checkpoint"] == str(old) and score == 2.0
-    assert int(load_trained(summary["best_checkpoint"]).iteration) == 2
+    assert read_checkpoint(summary["best_checkpoint"])["global_step"] == 2
 
 
 def test_resuming_from_a_lean_best_checkpoint_is_refused(tmp_path, synthetic_data_dir):
@@ -363,3 +362,36 @@ def test_cuda_random_state_is_saved_and_restored(train_cfg):
     torch.rand(100, device="cuda")  # move the generator on, as training would
     module.on_load_checkpoint(ckpt)
     assert torch.equal(torch.rand(4, device="cuda"), expected)
+
+
+def _as_a7603dd_wrote(path, out, iteration=None):
+    """The checkpoint at `path` in the form of commit a7603dd (the 20,000-iteration runs of
+    docs/runs): the module's `iteration` buffer, and an epoch length in the data config."""
+    ckpt = _load(path)
+    step = ckpt["global_step"] if iteration is None else iteration
+    ckpt["state_dict"]["iteration"] = torch.tensor(step)
+    ckpt["motion"]["config"]["data"]["steps_per_epoch"] = 2
+    torch.save(ckpt, out)
+    return out
+
+
+def test_a_checkpoint_of_commit_a7603dd_evaluates_to_the_same_numbers(tmp_path, synthetic_data_dir):
+    from src.eval import evaluate
+
+    out = tmp_path / "run"
+    _run(out, synthetic_data_dir, "iterations=2", "val_every=2")
+    (best,) = (out / "checkpoints").glob("best-*.ckpt")
+    old = _as_a7603dd_wrote(best, tmp_path / "old.ckpt")
+
+    def errors(path):
+        cfg = compose_config(
+            "eval", [f"ckpt_path={path}"], tmp_path / path.stem, synthetic_data_dir
+        )
+        return {k: v for k, v in evaluate(cfg).items() if k != "provenance"}
+
+    assert errors(old) == errors(best)
+    assert read_checkpoint(old)["global_step"] == 2
+    # A buffer that disagrees with the Trainer's count is no checkpoint of that version.
+    wrong = _as_a7603dd_wrote(best, tmp_path / "wrong.ckpt", iteration=5)
+    with pytest.raises(CheckpointError, match="counts 5 iterations .* 2 steps"):
+        read_checkpoint(wrong)

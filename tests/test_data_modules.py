@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import zipfile
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from src.data.windows import cmu_test_starts, srnn_h36m_starts
 from tests import objects
 from tests.conftest import run_in_one_process
 
-SMALL = dict(batch_size=4, steps_per_epoch=3, eval_batch_size=5)
+SMALL = dict(batch_size=4, eval_batch_size=5)
 
 
 @pytest.fixture
@@ -71,7 +72,7 @@ def test_synthetic_module_attributes(synthetic):
     assert (dm.pose_dim, dm.num_features) == (54, 99)
     assert dm.normalizer.dim_used.tolist() == list(H36M_USED_COLUMNS)
     assert dm.actions == ["walking", "eating", "smoking"] and dm.num_actions == 3
-    assert (dm.observed_len, dm.future_len, dm.draws_per_step) == (50, 25, 1)
+    assert (dm.observed_len, dm.future_len, dm.discriminator_windows) == (50, 25, False)
     assert dm.absent_actions == {} and dm.missing_files == []
     assert dm.test_sequence("eating", 1).shape == (200, 99)  # 400 raw frames -> even frames
 
@@ -119,14 +120,16 @@ def test_srnn_eval_windows_and_their_content(synthetic):
 
 def test_train_batches(synthetic):
     dm = synthetic
-    batches = list(dm.train_dataloader())
-    assert len(batches) == 3
-    b = batches[0]
+    b = next(iter(dm.train_dataloader()))
     assert set(b) == {"observed", "future", "action"}
     assert b["observed"].shape == (4, 50, 54) and b["future"].shape == (4, 25, 54)
     assert b["action"].dtype == torch.long and set(b["action"].tolist()) <= {0, 1, 2}
-    dm.draws_per_step = 2  # what the adversarial LightningModule sets
-    assert next(iter(dm.train_dataloader()))["observed"].shape == (8, 50, 54)
+    # With the regulariser D's windows ride along under "d": as many, other ones.
+    dm.discriminator_windows = True
+    b = next(iter(dm.train_dataloader()))
+    assert set(b) == {"observed", "future", "action", "d"} and set(b["d"]) == set(b) - {"d"}
+    assert b["d"]["observed"].shape == b["observed"].shape == (4, 50, 54)
+    assert not torch.equal(b["d"]["observed"], b["observed"])
 
 
 def test_batches_are_pinned_only_for_a_gpu_trainer(synthetic):
@@ -135,7 +138,8 @@ def test_batches_are_pinned_only_for_a_gpu_trainer(synthetic):
     assert not synthetic.train_dataloader().pin_memory  # no trainer attached
     for device, pinned in (("cpu", False), ("cuda", True)):
         root = SimpleNamespace(type=device)
-        synthetic.trainer = SimpleNamespace(strategy=SimpleNamespace(root_device=root))
+        strategy = SimpleNamespace(root_device=root)
+        synthetic.trainer = SimpleNamespace(strategy=strategy, global_step=0)
         assert synthetic.train_dataloader().pin_memory is pinned
         assert synthetic.val_dataloader().pin_memory is pinned
 
@@ -165,7 +169,8 @@ def test_single_action_module(tmp_path):
     dm = SyntheticDataModule(tmp_path, actions="eating", **SMALL)
     dm.setup()
     assert dm.actions == ["eating"] and dm.num_actions == 1 and len(dm.eval_windows) == 8
-    assert {b["action"].unique().item() for b in dm.train_dataloader()} == {0}
+    batches = itertools.islice(dm.train_dataloader(), 20)
+    assert {b["action"].unique().item() for b in batches} == {0}
 
 
 # ---- partial copies -------------------------------------------------------------------------
@@ -373,18 +378,18 @@ class _Recorder(L.LightningModule):
         self.seen: dict[int, list[torch.Tensor]] = {}
 
     def training_step(self, batch, batch_idx):
-        self.seen.setdefault(self.current_epoch, []).append(batch["observed"][:, 0, 0].clone())
+        self.seen[self.global_step] = batch["observed"][:, 0, 0].clone()
         return self.layer(torch.ones(1, 1)).sum()
 
     def configure_optimizers(self):
         return torch.optim.SGD(self.parameters(), lr=0.0)
 
 
-def _fit(data_dir, max_epochs, ckpt_path=None, save_to=None):
+def _fit(data_dir, max_steps, ckpt_path=None, save_to=None):
     dm = SyntheticDataModule(data_dir, **SMALL)
     model = _Recorder()
     trainer = L.Trainer(
-        max_epochs=max_epochs,
+        max_steps=max_steps,
         accelerator="cpu",
         devices=1,
         logger=False,
@@ -396,20 +401,23 @@ def _fit(data_dir, max_epochs, ckpt_path=None, save_to=None):
     trainer.fit(model, datamodule=dm, ckpt_path=ckpt_path)
     if save_to:
         trainer.save_checkpoint(save_to)
-    return {e: torch.stack(v) for e, v in model.seen.items()}
+    return model.seen
 
 
 @pytest.mark.filterwarnings("ignore:You passed in a `val_dataloader`")
-def test_lightning_epochs_differ_reruns_repeat_and_resume(tmp_path):
-    run1 = _fit(tmp_path, 2)
-    run2 = _fit(tmp_path, 2)
-    assert sorted(run1) == [0, 1] and run1[0].shape == (3, 4)
-    assert not torch.equal(run1[0], run1[1])  # Lightning called set_epoch
-    assert all(torch.equal(run1[e], run2[e]) for e in run1)
-    ckpt = tmp_path / "epoch0.ckpt"
-    _fit(tmp_path, 1, save_to=ckpt)
-    resumed = _fit(tmp_path, 2, ckpt_path=ckpt)
-    assert list(resumed) == [1] and torch.equal(resumed[1], run1[1])
+def test_a_plain_trainer_draws_new_batches_repeats_them_and_resumes_at_its_step(tmp_path):
+    """The training loader is endless, batch k drawn from (seed, k): a plain Trainer's max_steps
+    ends it, a rerun draws the same batches, and a fit resumed from a checkpoint at step 3
+    continues with batch 3, as the uninterrupted fit drew it."""
+    run1 = _fit(tmp_path, 5)
+    run2 = _fit(tmp_path, 5)
+    assert sorted(run1) == [0, 1, 2, 3, 4] and run1[0].shape == (4,)
+    assert not torch.equal(run1[0], run1[1])
+    assert all(torch.equal(run1[k], run2[k]) for k in run1)
+    ckpt = tmp_path / "step3.ckpt"
+    _fit(tmp_path, 3, save_to=ckpt)
+    resumed = _fit(tmp_path, 5, ckpt_path=ckpt)
+    assert sorted(resumed) == [3, 4] and all(torch.equal(resumed[k], run1[k]) for k in resumed)
 
 
 def test_the_reference_angle_wrap_of_the_config_reaches_the_statistics(tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 
 import numpy as np
@@ -100,56 +101,49 @@ def test_strided_starts_enumerate_every_window():
 # ---- TrainWindowSampler (protocol §1.4) ------------------------------------------------------
 
 
-def _epoch(sampler, epoch):
-    sampler.set_epoch(epoch)
-    return list(sampler)
+def _first(sampler, n):
+    return list(itertools.islice(sampler, n))
 
 
 def test_sampler_shapes_and_ranges():
     lengths = [200, 120, 90]
-    s = TrainWindowSampler(lengths, window_len=75, low=16, batch_size=4, steps_per_epoch=50)
-    batches = list(s)
-    assert len(s) == len(batches) == 50
+    s = TrainWindowSampler(lengths, window_len=75, low=16, batch_size=4)
+    batches = _first(s, 50)
     assert all(len(b) == 4 for b in batches)
     pairs = [p for b in batches for p in b]
     assert {seq for seq, _ in pairs} == {0, 1}  # 90 - 75 = 15 < 16: sequence 2 never drawn
     assert all(16 <= start < lengths[seq] - 75 for seq, start in pairs)
-    s.draws_per_step = 2
-    assert all(len(b) == 8 for b in s)
+    # With the regulariser a batch holds D's windows, then G's: two draws of batch_size.
+    doubled = _first(TrainWindowSampler(lengths, window_len=75, low=16, batch_size=4, draws=2), 5)
+    assert all(len(b) == 8 for b in doubled)
 
 
 def test_sampler_is_uniform_over_sequences_not_lengths():
     # The reference draws the sequence key uniformly, then the start (protocol §1.4).
-    s = TrainWindowSampler([100, 10_000], window_len=75, low=0, batch_size=100, steps_per_epoch=40)
-    counts = Counter(seq for b in s for seq, _ in b)
+    s = TrainWindowSampler([100, 10_000], window_len=75, low=0, batch_size=100)
+    counts = Counter(seq for b in _first(s, 40) for seq, _ in b)
     assert abs(counts[0] / 4000 - 0.5) < 0.04
 
 
-def test_sampler_epochs_reproducible_and_distinct():
-    make = lambda seed: TrainWindowSampler(  # noqa: E731
-        [300, 250], window_len=75, low=16, batch_size=8, steps_per_epoch=5, seed=seed
+def test_sampler_is_endless_reproducible_and_resumes_at_any_batch():
+    make = lambda seed=0, start=0: TrainWindowSampler(  # noqa: E731
+        [300, 250], window_len=75, low=16, batch_size=8, seed=seed, start=start
     )
-    a, b = make(0), make(0)
-    assert _epoch(a, 0) == _epoch(b, 0)
-    assert _epoch(a, 0) != _epoch(a, 1)
-    # Resuming at epoch 3 gives exactly what a continuous run gives at epoch 3.
-    continuous = [_epoch(a, e) for e in range(4)]
-    assert _epoch(make(0), 3) == continuous[3]
-    assert _epoch(make(1), 0) != continuous[0]
+    continuous = _first(make(), 2000)  # no end: the Trainer's max_steps stops it
+    assert len(continuous) == 2000 and continuous[0] != continuous[1]
+    assert _first(make(), 7) == continuous[:7]
+    # A resume at batch k (the Trainer's global_step) draws what the continuous run drew.
+    assert _first(make(start=1234), 3) == continuous[1234:1237]
+    assert _first(make(seed=1), 3) != continuous[:3]
 
 
 def test_sampler_ranks_draw_different_windows(monkeypatch):
-    s = TrainWindowSampler([300, 250], window_len=75, low=16, batch_size=8, steps_per_epoch=5)
-    rank0 = list(s)  # rank 0 of DDP draws what a single process draws
+    s = TrainWindowSampler([300, 250], window_len=75, low=16, batch_size=8)
+    rank0 = _first(s, 5)  # rank 0 of DDP draws what a single process draws
     monkeypatch.setattr(datasets_mod, "_rank", lambda: 1)
-    assert list(s) != rank0
-
-
-def test_sampler_exposes_itself_where_lightning_calls_set_epoch():
-    s = TrainWindowSampler([300], window_len=75, low=16, batch_size=2, steps_per_epoch=1)
-    assert s.sampler is s
+    assert _first(s, 5) != rank0
 
 
 def test_sampler_rejects_too_short_data():
     with pytest.raises(DataError, match="no training sequence is long enough"):
-        TrainWindowSampler([80], window_len=75, low=16, batch_size=2, steps_per_epoch=1)
+        TrainWindowSampler([80], window_len=75, low=16, batch_size=2)

@@ -83,7 +83,7 @@ _step = MotionPredictor.training_step
 
 
 def _step_with_sigterm(self, batch, batch_idx):
-    if self.global_rank == 0 and int(self.iteration) == 2:
+    if self.global_rank == 0 and self.global_step == 2:
         os.kill(os.getpid(), signal.SIGTERM)
     return _step(self, batch, batch_idx)
 
@@ -150,7 +150,7 @@ def test_sigterm_to_one_rank_stops_every_rank_with_a_resumable_checkpoint(
     last = run / "checkpoints" / "last.ckpt"
     # Both ranks stopped after iteration 3 and said so, rank 1 included.
     assert out.count(f"stopped after iteration 3 and wrote {last}") == 2, out[-3000:]
-    assert int(torch.load(last, weights_only=True)["state_dict"]["iteration"]) == 3
+    assert torch.load(last, weights_only=True)["global_step"] == 3
     assert not (run / "summary.yaml").exists()
 
     time.sleep(1.1)  # run folders are timestamped to the second

@@ -17,6 +17,7 @@ import torch
 
 from src.lit.factory import build_datamodule, build_module
 from src.lit.predictor import MotionPredictor
+from tests import objects
 
 OBSERVED, FUTURE = 50, 25
 TRUE_FRAMES = list(range(OBSERVED + FUTURE))
@@ -105,7 +106,8 @@ def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, referen
     )
     # Four different windows: two draws of two, one for the D step, one for the G step.
     observed, future = frame_batch(4, dm.normalizer.pose_dim, distinct=True)
-    batch = {"observed": observed, "future": future, "action": torch.zeros(4, dtype=torch.long)}
+    flat = {"observed": observed, "future": future, "action": torch.zeros(4, dtype=torch.long)}
+    batch = objects.with_d_windows(flat)
     loader = torch.utils.data.DataLoader(_OneBatch(batch), batch_size=None)
     trainer = L.Trainer(
         accelerator="cpu",

@@ -383,7 +383,7 @@ _save = LastCheckpoint.save
 
 def _save_then_die(self, trainer, pl_module):
     _save(self, trainer, pl_module)
-    if int(pl_module.iteration) == int(os.environ["DIE_AFTER"]):
+    if pl_module.global_step == int(os.environ["DIE_AFTER"]):
         os._exit(137)
 
 

@@ -84,7 +84,7 @@ def test_same_config_and_seed_give_identical_results(trained, h36m_dir, tmp_path
     for key in ("best_val_euler_avg", "final_val_euler_avg", "final_val_mpjpe_avg", "iterations"):
         assert first[key] == second[key], key
     a, b = _last(trained), _last(tmp_path / "again")
-    assert int(a["state_dict"]["iteration"]) == 2
+    assert a["global_step"] == 2
     for name, tensor in a["state_dict"].items():
         assert torch.equal(tensor, b["state_dict"][name]), name
 
@@ -95,8 +95,9 @@ def _poison_data_at(iteration: int):
     original = MotionPredictor.training_step
 
     def step(self, batch, batch_idx):
-        if int(self.iteration) == iteration:
-            batch = {**batch, "future": batch["future"] * float("nan")}
+        if self.global_step == iteration:  # D's windows and G's
+            poisoned = lambda b: {**b, "future": b["future"] * float("nan")}  # noqa: E731
+            batch = {**poisoned(batch), "d": poisoned(batch["d"])}
         return original(self, batch, batch_idx)
 
     return step
@@ -108,7 +109,7 @@ def _poison_weights_after(iteration: int):
 
     def step(self, batch, batch_idx):
         original(self, batch, batch_idx)
-        if int(self.iteration) == iteration:
+        if self.global_step == iteration:
             with torch.no_grad():
                 for p in self.net.parameters():
                     p.fill_(float("nan"))
@@ -143,7 +144,7 @@ def test_non_finite_training_stops_and_keeps_last_good_checkpoint(
     # The message names the file to resume from (issue: it used to point at a folder).
     assert f"The last good checkpoint is {out / 'checkpoints' / 'last.ckpt'}" in str(err.value)
     kept = _last(out)
-    assert int(kept["state_dict"]["iteration"]) == 2  # epoch 0's, not overwritten
+    assert kept["global_step"] == 2  # epoch 0's, not overwritten
     assert all(
         torch.isfinite(t).all() for t in kept["state_dict"].values() if t.is_floating_point()
     )

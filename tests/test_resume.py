@@ -6,6 +6,7 @@ iteration counter, the training sampler's epoch and the torch random state all r
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -51,7 +52,7 @@ _log_dict = MotionPredictor.log_dict
 
 def _rising(self, metrics, **kwargs):
     if "val/euler_avg" in metrics:
-        metrics = {**metrics, "val/euler_avg": float(self.iteration)}
+        metrics = {**metrics, "val/euler_avg": float(self.global_step)}
     return _log_dict(self, metrics, **kwargs)
 
 
@@ -91,7 +92,7 @@ def _kill_after_checkpoint(
                 proc.send_signal(signal.SIGCONT)
                 time.sleep(0.05)
                 continue
-            if int(ckpt["state_dict"]["iteration"]) < at:
+            if ckpt["global_step"] < at:
                 proc.send_signal(signal.SIGCONT)
                 time.sleep(0.005)
                 continue
@@ -150,7 +151,7 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     )
     saved = _kill_after_checkpoint(killed, log_b, at=4)
     assert killed.returncode == -signal.SIGKILL
-    at = int(saved["state_dict"]["iteration"])
+    at = saved["global_step"]
     assert at == 4, f"killed at iteration {at}, not after the second validation"
     (run_b,) = _run_folders(log_b)
     assert not (run_b / "summary.yaml").exists()
@@ -186,12 +187,14 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     for part in ("state_dict", "optimizer_states", "lr_schedulers", "rng"):
         _same(end_a[part], end_b[part], part)
     assert len(end_a["optimizer_states"]) == 2 and len(end_a["lr_schedulers"]) == 2
-    assert end_b["loops"]["fit_loop"]["epoch_progress"]["current"]["processed"] == 3
+    # Killed after iteration 4's validation: the resumed run neither repeats nor skips one.
+    log = (resumed / "train.log").read_text()
+    assert re.findall(r"validation at iteration (\d+)", log) == ["6"], log[-3000:]
 
 
-SIGTERM_DURING_ITERATION_3 = """
-# Test hook loaded through PYTHONPATH: SIGTERM (a cluster's pre-emption) arrives while the
-# third iteration runs, always at the same point.
+SIGTERM_DURING_ITERATION = """
+# Test hook loaded through PYTHONPATH: SIGTERM (a cluster's pre-emption) arrives while
+# iteration SIGTERM_IN runs, always at the same point.
 import os
 import signal
 
@@ -201,7 +204,7 @@ _step = MotionPredictor.training_step
 
 
 def _step_with_sigterm(self, batch, batch_idx):
-    if int(self.iteration) == 2:
+    if self.global_step + 1 == int(os.environ["SIGTERM_IN"]):
         os.kill(os.getpid(), signal.SIGTERM)
     return _step(self, batch, batch_idx)
 
@@ -210,13 +213,16 @@ MotionPredictor.training_step = _step_with_sigterm
 """
 
 
-def test_sigterm_between_validations_saves_and_exits_143(tmp_path, synthetic_data_dir):
+@pytest.mark.parametrize("iteration", [3, 4], ids=["between_validations", "at_a_validation"])
+def test_sigterm_saves_and_exits_143(tmp_path, synthetic_data_dir, iteration):
     """SIGTERM takes the Ctrl-C path, not Lightning's own SIGTERM handling: the iteration in
-    progress finishes, last.ckpt holds it, the resume command is printed, exit status 143."""
+    progress finishes (and its validation, where one is due, so that the resume does not skip
+    it), last.ckpt holds it, the resume command is printed, exit status 143."""
     hook = tmp_path / "hook"
     hook.mkdir()
-    (hook / "sitecustomize.py").write_text(SIGTERM_DURING_ITERATION_3)
+    (hook / "sitecustomize.py").write_text(SIGTERM_DURING_ITERATION)
     env = {**_env(synthetic_data_dir), "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+    env["SIGTERM_IN"] = str(iteration)
     log_dir = tmp_path / "logs"
     proc = subprocess.run(
         _train_cmd(log_dir, "checkpoint_every=0"),  # TINY: 6 iterations, validation every 2
@@ -231,10 +237,12 @@ def test_sigterm_between_validations_saves_and_exits_143(tmp_path, synthetic_dat
     assert "Traceback" not in out, out[-3000:]
     (run,) = _run_folders(log_dir)
     last = run / "checkpoints" / "last.ckpt"
-    assert f"SIGTERM received: stopped after iteration 3 and wrote {last}" in out, out[-3000:]
+    assert f"SIGTERM received: stopped after iteration {iteration} and wrote {last}" in out, out
     assert f"ckpt_path={last}" in out
-    assert int(torch.load(last, weights_only=True)["state_dict"]["iteration"]) == 3
+    assert torch.load(last, weights_only=True)["global_step"] == iteration
     assert not (run / "summary.yaml").exists()
+    validated = re.findall(r"validation at iteration (\d+)", (run / "train.log").read_text())
+    assert validated == [str(n) for n in range(2, iteration + 1, 2)]
 
 
 @pytest.mark.slow
@@ -275,7 +283,7 @@ def test_ctrl_c_between_validations_saves_and_resumes_exactly(tmp_path, syntheti
     (run_b,) = _run_folders(log_b)
     last_b = run_b / "checkpoints" / "last.ckpt"
     assert f"wrote {last_b}" in out and f"ckpt_path={last_b}" in out
-    at = int(torch.load(last_b, weights_only=True)["state_dict"]["iteration"])
+    at = torch.load(last_b, weights_only=True)["global_step"]
     assert 0 < at < 300, f"interrupted at iteration {at}, not between validations"
     assert not (run_b / "summary.yaml").exists()
 

@@ -45,12 +45,10 @@ def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
     class Spy(L.Callback):
         def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
             seen.update({k: v.item() for k, v in trainer.callback_metrics.items()})
-            seen["batch"] = batch["observed"].shape[0]
+            seen["batch"] = (batch["d"]["observed"].shape[0], batch["observed"].shape[0])
 
     trainer = L.Trainer(
-        max_steps=-1,
-        max_epochs=1,
-        limit_train_batches=2,
+        max_steps=2,
         limit_val_batches=0,
         logger=False,
         enable_checkpointing=False,
@@ -60,15 +58,14 @@ def test_alternation_steps_both_optimisers_and_adds_adversarial_term(train_cfg):
         enable_progress_bar=False,
         log_every_n_steps=2,
     )
-    dm.steps_per_epoch = 2
     trainer.fit(module, datamodule=dm)
 
     changed = lambda a, b: any(not torch.equal(a[k], b[k]) for k in a)  # noqa: E731
     assert changed(g_before, module.net.state_dict()), "generator did not step"
     assert changed(d_before, module.discriminator.state_dict()), "discriminator did not step"
-    assert int(module.iteration) == 2
+    assert trainer.global_step == 2
     # Two batches per iteration: one for D (eq. 8), one for G (eq. 9).
-    assert seen["batch"] == 2 * cfg.data.batch_size
+    assert seen["batch"] == (cfg.data.batch_size, cfg.data.batch_size)
     expected = seen["train/loss_recon"] + module.lambda_2 * seen["train/loss_l2"]
     expected += module.lambda_adv * seen["train/loss_adv"]
     assert seen["train/loss_g"] == pytest.approx(expected, rel=1e-5)
@@ -104,7 +101,6 @@ def test_l2_terms_reach_the_gradients_as_lambda_times_weight(train_cfg):
     cfg = train_cfg("model=conv_s2s", "adversarial=li2018")
     dm, module = _module_and_data(cfg)
     module.train()
-    dm.draws_per_step = 2  # what the module sets when a fit starts: one draw for D, one for G
     batch = next(iter(dm.train_dataloader()))
     lam_g, lam_d = 1e-2, 3e-2
     without = _gradients_of_one_step(module, batch, 0.0, 0.0)
@@ -275,7 +271,7 @@ class _Batches(L.Callback):
         self.seen = []
 
     def on_train_batch_start(self, trainer, pl_module, batch, batch_idx):
-        self.seen.append(batch["observed"].clone())
+        self.seen.append((batch["d"]["observed"].clone(), batch["observed"].clone()))
 
 
 def _plain_fit(cfg, **trainer_kwargs):
@@ -297,9 +293,9 @@ def _plain_fit(cfg, **trainer_kwargs):
 
 
 def test_a_plain_trainer_trains_exactly_as_src_train(train_cfg, tmp_path):
-    """Issue 40: the module owns its batch draws and its length. Handed to a plain
-    `L.Trainer().fit(module, datamodule=dm)` it draws two batches per iteration (D and G on
-    different windows), stops at `iterations` with global_step == iterations, and ends with
+    """The Trainer owns the schedule: handed to a plain `L.Trainer(max_steps=N,
+    val_check_interval=V).fit(module, datamodule=dm)`, the module trains on batches that carry
+    D's windows and G's, different ones, stops at N with global_step == N, and ends with
     src.train's weights, bit for bit, for the same seed."""
     from src.train import train
 
@@ -308,12 +304,12 @@ def test_a_plain_trainer_trains_exactly_as_src_train(train_cfg, tmp_path):
     train(cfg)
     trained = torch.load(tmp_path / "run" / "checkpoints" / "last.ckpt", weights_only=True)
 
-    trainer, module, seen = _plain_fit(cfg)
-    assert trainer.global_step == int(module.iteration) == cfg.iterations == 4
+    trainer, module, seen = _plain_fit(cfg, max_steps=4, val_check_interval=2)
+    assert trainer.global_step == cfg.iterations == 4
     assert len(seen) == 4
-    for batch in seen:  # two draws of batch_size windows: one for D, one for G
-        assert batch.shape[0] == 2 * cfg.data.batch_size
-        assert not torch.equal(*batch.chunk(2))
+    for d, g in seen:  # two draws of batch_size windows: one for D, one for G
+        assert d.shape[0] == g.shape[0] == cfg.data.batch_size
+        assert not torch.equal(d, g)
     state = module.state_dict()
     assert trained["state_dict"].keys() == state.keys()
     for key, value in trained["state_dict"].items():
@@ -325,4 +321,4 @@ def test_max_steps_counts_iterations(train_cfg):
     """global_step counts iterations, not optimiser steps (two per adversarial iteration), so
     a Trainer's max_steps=N trains N iterations."""
     trainer, module, seen = _plain_fit(train_cfg(*TINY_ADV, "iterations=6"), max_steps=3)
-    assert trainer.global_step == int(module.iteration) == len(seen) == 3
+    assert trainer.global_step == len(seen) == 3

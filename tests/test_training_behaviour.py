@@ -121,11 +121,8 @@ def setup(tmp_path, synthetic_data_dir):
 
         def module():
             L.seed_everything(0, verbose=False)
-            built = build_module(cfg, dm)
-            dm.draws_per_step = 2 if built.adversarial else 1
-            return built
+            return build_module(cfg, dm)
 
-        module()  # sets how many batches the datamodule draws per step
         return dm, module
 
     return make
@@ -139,14 +136,12 @@ def _batch(dm, index: int = 0) -> dict[str, torch.Tensor]:
     raise AssertionError(f"fewer than {index + 1} training batches")
 
 
-def _halves_replaced(batch, other, half: int) -> dict[str, torch.Tensor]:
-    """`batch` with its first (half=0) or second (half=1) half taken from `other`."""
-    n = batch["observed"].shape[0] // 2
-    part = slice(0, n) if half == 0 else slice(n, 2 * n)
-    out = {k: v.clone() for k, v in batch.items()}
-    for k in out:
-        out[k][part] = other[k][part]
-    return out
+def _part_replaced(batch, other, part: str) -> dict:
+    """`batch` with the discriminator's windows (part "d") or the generator's ("g") taken from
+    `other`."""
+    if part == "d":
+        return {**batch, "d": other["d"]}
+    return {**{k: v for k, v in other.items() if k != "d"}, "d": batch["d"]}
 
 
 def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
@@ -185,7 +180,7 @@ def test_discriminator_and_generator_learn_from_different_windows(setup):
     is 0 so that the G step cannot depend on the D half through D's weights."""
     dm, module = setup(*TINY_CONV, "adversarial.optimizer.lr=0")
     batch, other = _batch(dm, 0), _batch(dm, 1)
-    assert batch["observed"].shape[0] == 2 * dm.batch_size  # two draws per step
+    assert batch["d"]["observed"].shape == batch["observed"].shape  # two draws per step
     assert not torch.equal(batch["observed"], other["observed"])
 
     def step_gradients(b):
@@ -195,14 +190,13 @@ def test_discriminator_and_generator_learn_from_different_windows(setup):
 
     g, d = step_gradients(batch)
     g_dependence, d_dependence = [], []
-    for half in (0, 1):
-        g_half, d_half = step_gradients(_halves_replaced(batch, other, half))
-        g_dependence.append(not _same(g, g_half))
-        d_dependence.append(not _same(d, d_half))
-    # Each objective sees one half only, and not the same one.
-    assert sorted(g_dependence) == [False, True], f"G depends on halves {g_dependence}"
-    assert sorted(d_dependence) == [False, True], f"D depends on halves {d_dependence}"
-    assert g_dependence != d_dependence, "D and G learn from the same windows"
+    for part in ("d", "g"):
+        g_part, d_part = step_gradients(_part_replaced(batch, other, part))
+        g_dependence.append(not _same(g, g_part))
+        d_dependence.append(not _same(d, d_part))
+    # Each objective sees its own windows only.
+    assert g_dependence == [False, True], f"G depends on the windows of (d, g): {g_dependence}"
+    assert d_dependence == [True, False], f"D depends on the windows of (d, g): {d_dependence}"
 
 
 def test_the_generator_steps_towards_fooling_the_discriminator(setup):
@@ -214,10 +208,9 @@ def test_the_generator_steps_towards_fooling_the_discriminator(setup):
         *TINY_CONV, *NO_DROPOUT, "sampling=full", "adversarial.lambda_adv=100", "model.lambda_2=0"
     )
     m = module()
-    half = dm.batch_size
-    first = {k: v[:half] for k, v in _batch(dm, 0).items()}
-    # Both halves the same windows: whichever the G step takes, it judges these predictions.
-    both = {k: torch.cat([v, v]) for k, v in first.items()}
+    first = {k: v for k, v in _batch(dm, 0).items() if k != "d"}
+    # D's windows the same as G's: the G step judges these predictions whatever it takes.
+    both = {**first, "d": first}
     (g,) = _fit(m, [both]).of("g")
 
     # D's logit on the predictions, as a function of the generator's weights at the G step.

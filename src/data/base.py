@@ -18,7 +18,11 @@ import torch
 from torch.utils.data import DataLoader
 
 from src.data.archive import ensure_dataset, resolve_data_dir
-from src.data.datasets import TrainWindowSampler, WindowDataset
+from src.data.datasets import (
+    TrainWindowSampler,
+    WindowDataset,
+    collate_with_discriminator_windows,
+)
 from src.data.errors import DataError
 from src.data.layout import DatasetSpec, FileEntry, missing_files, parse_actions
 from src.data.normalization import Normalizer
@@ -82,7 +86,7 @@ class MotionDataModule(L.LightningDataModule):
         future_len: int = 25,
         batch_size: int = 16,
         eval_batch_size: int = 256,
-        steps_per_epoch: int = 1000,
+        discriminator_windows: bool = False,
         eval_protocol: str = "srnn",
         eval_windows_per_action: int = 256,
         eval_stride: int = 10,
@@ -102,7 +106,8 @@ class MotionDataModule(L.LightningDataModule):
         self.window_len = self.observed_len + self.future_len
         self.batch_size = _positive("batch_size", batch_size)
         self.eval_batch_size = _positive("eval_batch_size", eval_batch_size)
-        self.steps_per_epoch = _positive("steps_per_epoch", steps_per_epoch)
+        # With the regulariser a batch carries D's own windows under "d" (protocol §6.6).
+        self.discriminator_windows = bool(discriminator_windows)
         if eval_protocol not in EVAL_PROTOCOLS:
             raise DataError(
                 f"unknown data.eval_protocol {eval_protocol!r}; valid: {', '.join(EVAL_PROTOCOLS)}"
@@ -116,8 +121,6 @@ class MotionDataModule(L.LightningDataModule):
         self.allow_partial = bool(allow_partial)
         self.num_workers = _positive("num_workers", num_workers, 0)
         self.seed = _positive("seed", seed, 0)
-        self.draws_per_step = 1  # 2 with a discriminator: set by the LightningModule
-        self.resume_iteration = 0  # set by src.train when it resumes a checkpoint
         self.normalizer: Normalizer | None = None
         self.eval_windows: list[EvalWindow] = []
         self.absent_actions: dict[str, str] = {}
@@ -289,18 +292,19 @@ class MotionDataModule(L.LightningDataModule):
         )
 
     def train_dataloader(self) -> DataLoader:
+        draws = 2 if self.discriminator_windows else 1
         sampler = TrainWindowSampler(
             self._train_lengths,
             self.window_len,
             TRAIN_START_LOW[self.dataset_name],
             self.batch_size,
-            self.steps_per_epoch,
-            self.draws_per_step,
+            draws,
             self.seed,
+            # The Trainer restores a checkpoint's step before it asks for the loaders.
+            start=self.trainer.global_step if self.trainer is not None else 0,
         )
-        # A resume from a checkpoint written between validations continues its epoch.
-        sampler.start_step = self.resume_iteration % self.steps_per_epoch
-        return self._loader(self._train_dataset, batch_sampler=sampler)
+        collate = collate_with_discriminator_windows if draws == 2 else None
+        return self._loader(self._train_dataset, batch_sampler=sampler, collate_fn=collate)
 
     def val_dataloader(self) -> DataLoader:
         """The test windows: the protocol has no validation split (protocol §8)."""

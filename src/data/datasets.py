@@ -1,15 +1,16 @@
 """The torch dataset over downsampled, normalised sequences, and the training batch sampler of
 the reference (protocol §1.4): per window a sequence uniform with replacement (not weighted by
-length), then a start uniform in the dataset's range. An "epoch" is ``steps_per_epoch`` batches."""
+length), then a start uniform in the dataset's range; endless, batch k drawn from (seed, k)."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator, Sequence
 
 import numpy as np
 import torch
 from torch import Tensor
-from torch.utils.data import Dataset, Sampler
+from torch.utils.data import Dataset, Sampler, default_collate
 
 from src.data.errors import DataError
 
@@ -46,9 +47,11 @@ def _rank() -> int:
 
 
 class TrainWindowSampler(Sampler):
-    """``steps_per_epoch`` batches of ``batch_size * draws_per_step`` (seq, start) pairs, seeded
-    from (seed, epoch, DDP rank): reproducible, resumable, and different on each rank without a
-    DistributedSampler (``use_distributed_sampler=False``)."""
+    """An endless stream of batches of (seq, start) pairs: batch k holds ``batch_size * draws``
+    windows drawn from (seed, k, DDP rank), so it is the same whenever and wherever it is drawn,
+    a resume starts at batch ``start`` (the Trainer's global_step) with nothing to skip, and each
+    rank draws its own without a DistributedSampler (``use_distributed_sampler=False``). The
+    Trainer's ``max_steps`` ends the stream."""
 
     def __init__(
         self,
@@ -56,9 +59,9 @@ class TrainWindowSampler(Sampler):
         window_len: int,
         low: int,
         batch_size: int,
-        steps_per_epoch: int,
-        draws_per_step: int = 1,
+        draws: int = 1,
         seed: int = 0,
+        start: int = 0,
     ):
         self.highs = np.asarray(lengths, dtype=np.int64) - window_len
         self.eligible = np.flatnonzero(self.highs > low)
@@ -67,28 +70,21 @@ class TrainWindowSampler(Sampler):
                 f"no training sequence is long enough for a {window_len}-frame window "
                 f"(lengths {list(lengths)}); shorten data.future_len"
             )
-        self.low, self.batch_size, self.steps_per_epoch = low, batch_size, steps_per_epoch
-        self.draws_per_step, self.seed, self.epoch = draws_per_step, seed, 0
-        # Batches of the current epoch already trained on before a mid-epoch resume: drawn
-        # and dropped once, so the resumed run sees the batches the killed one would have.
-        self.start_step = 0
+        self.low, self.batch_size, self.draws = low, batch_size, draws
+        self.seed, self.start = seed, start
 
-    @property
-    def sampler(self) -> TrainWindowSampler:  # Lightning calls batch_sampler.sampler.set_epoch
-        return self
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
-
-    def __len__(self) -> int:
-        return self.steps_per_epoch
+    def batch(self, k: int) -> list[tuple[int, int]]:
+        rng = np.random.default_rng([self.seed, k, _rank()])
+        seqs = self.eligible[rng.integers(0, self.eligible.size, size=self.batch_size * self.draws)]
+        starts = rng.integers(self.low, self.highs[seqs])
+        return list(zip(seqs.tolist(), starts.tolist(), strict=True))
 
     def __iter__(self) -> Iterator[list[tuple[int, int]]]:
-        rng = np.random.default_rng([self.seed, self.epoch, _rank()])
-        n = self.batch_size * self.draws_per_step
-        skip, self.start_step = self.start_step, 0
-        for step in range(self.steps_per_epoch):
-            seqs = self.eligible[rng.integers(0, self.eligible.size, size=n)]
-            starts = rng.integers(self.low, self.highs[seqs])
-            if step >= skip:
-                yield list(zip(seqs.tolist(), starts.tolist(), strict=True))
+        return map(self.batch, itertools.count(self.start))
+
+
+def collate_with_discriminator_windows(items: list[dict[str, Tensor]]) -> dict[str, Tensor]:
+    """A batch of 2B windows as the generator's B, with the discriminator's other B under "d":
+    D and G see different windows in an iteration (protocol §6.6)."""
+    half = len(items) // 2
+    return {**default_collate(items[half:]), "d": default_collate(items[:half])}

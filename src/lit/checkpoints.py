@@ -39,18 +39,27 @@ class TrainingInterrupted(RuntimeError):
         )
 
 
+def validates_now(trainer: L.Trainer) -> bool:
+    """Whether the Trainer validates after the iteration just trained (every val_check_interval)."""
+    every = trainer.val_check_batch
+    return trainer.enable_validation and isinstance(every, int) and trainer.global_step % every == 0
+
+
 class LastCheckpoint(Checkpoint):
-    """Writes `last.ckpt` atomically at every validation, every `every` iterations (0: off) and,
-    on SIGINT/SIGTERM, after the iteration in progress, then stops with TrainingInterrupted; a
-    second signal aborts at once. (Lightning 2.6's ModelCheckpoint(save_last=True) rewrote it
-    only with a new best.) The Trainer runs a `Checkpoint` after every other callback: the
-    random state saved is the one the next iteration starts from, whatever the others drew."""
+    """Writes `last.ckpt` atomically after every validation, every `every` iterations (0: off)
+    and, on SIGINT/SIGTERM, after the iteration in progress (and its validation, if one is due),
+    then stops with TrainingInterrupted; a second signal aborts at once. (Lightning 2.6's
+    ModelCheckpoint(save_last=True) rewrote it only with a new best.) Lightning resumes a
+    checkpoint written at a validation's end past that validation, and one written at a batch's
+    end at the next batch. The Trainer runs a `Checkpoint` after every other callback: the random
+    state saved is the one the next iteration starts from, whatever the others drew."""
 
     def __init__(self, dirpath: str | Path, every: int = 0):
         self.path = Path(dirpath) / LAST
         self.every = int(every)
         self._signal: int | None = None
         self._previous: dict[int, Any] = {}
+        self._saved_at: int | None = None
 
     # Installed inside fit (after Lightning's SIGTERM connector), restored at teardown.
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -80,6 +89,7 @@ class LastCheckpoint(Checkpoint):
         else:
             trainer.save_checkpoint(self.path, weights_only=False)
         trainer.strategy.barrier("last_checkpoint")
+        self._saved_at = trainer.global_step
 
     def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:
         """The same on every rank (one all-reduce per iteration): a signal may reach one rank
@@ -90,20 +100,30 @@ class LastCheckpoint(Checkpoint):
         torch.distributed.all_reduce(signum, op=torch.distributed.ReduceOp.MAX)
         return int(signum) or None
 
+    def _save_and_stop(self, trainer: L.Trainer, pl_module: L.LightningModule, signum: int):
+        self.save(trainer, pl_module)
+        raise TrainingInterrupted(signum, self.path, trainer.global_step)
+
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        iteration = pl_module.host_iteration  # not `iteration`: on a GPU a read is a host sync
+        if validates_now(trainer):  # saved after the validation
+            return
         signum = self._stop_signal(trainer, pl_module)
         if signum is not None:
-            self.save(trainer, pl_module)
-            raise TrainingInterrupted(signum, self.path, iteration)
-        # Not at an epoch's last iteration: the epoch's end saves after its validation.
-        if self.every and iteration % self.every == 0 and not trainer.is_last_batch:
+            self._save_and_stop(trainer, pl_module, signum)
+        if self.every and trainer.global_step % self.every == 0:
             self.save(trainer, pl_module)
 
-    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        # An epoch (`val_every` iterations) ends with its validation. Not on_validation_end:
-        # the loop has not counted the epoch yet, and a resume would validate it again.
-        if not trainer.fast_dev_run:
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking or trainer.fast_dev_run or trainer.state.fn != "fit":
+            return
+        signum = self._stop_signal(trainer, pl_module)
+        if signum is not None:
+            self._save_and_stop(trainer, pl_module, signum)
+        self.save(trainer, pl_module)
+
+    def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        # The end of a run that did not end with a validation (limit_val_batches=0, say).
+        if not trainer.fast_dev_run and self._saved_at != trainer.global_step:
             self.save(trainer, pl_module)
 
 
@@ -116,21 +136,17 @@ class BestCheckpoint(ModelCheckpoint):
         # No "=" in the name (auto_insert_metric_name): it would not parse as ckpt_path=...
         super().__init__(
             dirpath,
-            "best-iter{iteration:06d}",
+            "best-iter{step:06d}",
             monitor,
             save_weights_only=True,
             auto_insert_metric_name=False,
+            save_on_train_epoch_end=False,
         )
 
-    def _monitor_candidates(self, trainer: L.Trainer) -> dict[str, torch.Tensor]:
-        # The module's count (Lightning's step counted 2 per adversarial iteration before).
-        iteration = torch.tensor(trainer.lightning_module.host_iteration)
-        return {**super()._monitor_candidates(trainer), "iteration": iteration}
-
-    def on_train_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        super().on_train_epoch_end(trainer, pl_module)  # saves the best of the epoch's validation
+    def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        super().on_validation_end(trainer, pl_module)  # saves a new best
         metrics = trainer.callback_metrics
-        if not trainer.is_global_zero or self.monitor not in metrics:
+        if trainer.sanity_checking or not trainer.is_global_zero or self.monitor not in metrics:
             return
         best, average = self.best_model_score, float(metrics[self.monitor])
         best = "no best" if best is None else f"best {best:.4f}: {Path(self.best_model_path).name}"
@@ -150,7 +166,7 @@ class BestCheckpoint(ModelCheckpoint):
             over = f"over {words}: " if words else ""
             parts.append(f"{over}{horizons}; average {mean:.4f}")
         log.info(
-            f"validation at iteration {pl_module.host_iteration}: Euler error {parts[0]} ({best})"
+            f"validation at iteration {trainer.global_step}: Euler error {parts[0]} ({best})"
             + "".join(f"; {part}" for part in parts[1:])
         )
 
@@ -166,6 +182,21 @@ class BestCheckpoint(ModelCheckpoint):
     def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
         if Path(filepath).resolve().parent == Path(self.dirpath).resolve():
             super()._remove_checkpoint(trainer, filepath)
+
+
+def upgrade(ckpt: dict) -> dict:
+    """A checkpoint of commit a7603dd or before, in today's form: the module counted its
+    iterations in an `iteration` buffer (now the Trainer's global_step, which it always equalled)
+    and the data config had a `steps_per_epoch` (an epoch was `val_every` iterations)."""
+    iteration = ckpt.get("state_dict", {}).pop("iteration", None)
+    if iteration is not None and "global_step" in ckpt and int(iteration) != ckpt["global_step"]:
+        raise CheckpointError(
+            f"the checkpoint counts {int(iteration)} iterations and its Trainer state "
+            f"{ckpt['global_step']} steps: it was written by an incompatible version"
+        )
+    data = ckpt.get("motion", {}).get("config", {}).get("data") or {}
+    data.pop("steps_per_epoch", None)
+    return ckpt
 
 
 def read_checkpoint(path: str | Path) -> dict:
@@ -192,7 +223,7 @@ def read_checkpoint(path: str | Path) -> dict:
             f"{path} is not a checkpoint written by this project's training (no 'motion' "
             "section). Train one with `python -m src.train ...`."
         )
-    return ckpt
+    return upgrade(ckpt)
 
 
 def _unreadable(path: Path, err: Exception) -> str:

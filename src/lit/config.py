@@ -134,10 +134,11 @@ class VisualizeConfig(Common):  # conf/visualize.yaml
 SCHEMAS = {"train": TrainConfig, "eval": EvalConfig, "visualize": VisualizeConfig,
            "export_windows": ExportWindowsConfig}  # fmt: skip
 
-# Trainer keys that the iteration schedule sets (src.train): any other value would be recorded
-# in the run's config.yaml and not be what ran. Lightning's defaults, which old runs recorded.
+# Trainer keys that the iteration schedule sets or would break (src.train hands iterations and
+# val_every to the Trainer as max_steps and val_check_interval): another value would be recorded
+# in the run's config.yaml and not be what ran. The values of "not set".
 SCHEDULE_OWNS = {"max_steps": -1, "max_epochs": None, "min_steps": None, "min_epochs": None,
-                 "val_check_interval": None, "check_val_every_n_epoch": 1,
+                 "val_check_interval": None, "check_val_every_n_epoch": None,
                  "limit_train_batches": None}  # fmt: skip
 # Words YAML 1.1 reads as booleans; Hydra reads them as strings, which Python takes as true.
 BOOLEAN_WORDS = {"yes", "no", "on", "off"}

@@ -114,7 +114,6 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
         run_info=run_info,
         compile=compile_.get("enabled", False),
         compile_mode=compile_.get("mode", "reduce-overhead"),
-        iterations=cfg.get("iterations"),
         untrained_actions=dm.untrained_actions,
         **kwargs,
     )

@@ -38,7 +38,7 @@ class FrameStripLogger(Callback):
         if not hasattr(experiment, "add_figure") or not getattr(dm, "eval_windows", None):
             return
         rows, n_obs, what = window_rows(dm, pl_module, 0, observed_shown=10)
-        step = int(getattr(pl_module, "iteration", trainer.global_step))
+        step = trainer.global_step
         fig = frame_strip(
             rows, Skeleton.load(pl_module.dataset), n_obs, dm.frame_ms, step=4, n_before=2,
             title=f"{what}, iteration {step}",

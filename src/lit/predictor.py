@@ -1,9 +1,9 @@
 """The LightningModule of every architecture and baseline. A training iteration of Li et al.
 (protocol §6.6), optimised by hand: the discriminator's objective, eq. (8), on one batch, then
 the generator's, eq. (9) = reconstruction (7) + lambda_2 * L2(weights) + lambda_adv *
-adversarial term, on another. Any Trainer trains it as src.train does (it sets the draws per
-iteration, stops at `iterations`; global_step counts iterations). Validation decodes
-autoregressively (eta = 1): Euler error (protocol §4) and MPJPE."""
+adversarial term, on the batch's others (`batch["d"]`, the datamodule's). One iteration is one
+Trainer step: a plain `L.Trainer(max_steps=N, val_check_interval=V)` trains it as src.train does.
+Validation decodes autoregressively (eta = 1): Euler error (protocol §4) and MPJPE."""
 
 from __future__ import annotations
 
@@ -20,6 +20,8 @@ from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
+from src.lit.checkpoints import upgrade
+from src.metrics.averages import averages
 from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
 from src.metrics.kinematics import Skeleton, moving_joints
 from src.metrics.mpjpe import MPJPE
@@ -50,20 +52,6 @@ def add_l2_gradient_(module: nn.Module, weight: float) -> None:
             p.grad.add_(p.detach(), alpha=weight)
 
 
-def averages(evaluated: list[str], untrained) -> dict[str, tuple[list[str], str]]:
-    """{name: (its actions, its set in words)} of the averages over evaluated actions that
-    TensorBoard, the validation line and src.eval show: `average` over all of them, and, where
-    some has no training files, `average_trained` over the others, the set src.report's verdict
-    judges; with one set only its words are '' (a plain "average")."""
-    trained = [a for a in evaluated if a not in untrained]
-    if not trained or len(trained) == len(evaluated):
-        return {"average": (list(evaluated), "")}
-    return {
-        "average": (list(evaluated), f"all {len(evaluated)} evaluated actions"),
-        "average_trained": (trained, f"{len(trained)} trained actions"),
-    }
-
-
 class MotionPredictor(L.LightningModule):
     def __init__(
         self,
@@ -89,7 +77,6 @@ class MotionPredictor(L.LightningModule):
         run_info: dict[str, Any] | None = None,
         compile: bool | str = False,
         compile_mode: str = "reduce-overhead",
-        iterations: int | None = None,
         untrained_actions: list[str] = (),
     ):
         super().__init__()
@@ -109,14 +96,10 @@ class MotionPredictor(L.LightningModule):
         self.lambda_adv, self.lambda_2_d = lambda_adv, lambda_2_d
         self.eta_schedule, self.reference_fake_slot = eta_schedule, reference_fake_slot
         self.run_info = run_info or {}
-        self.iterations = iterations  # where a fit stops (None: the Trainer's limits alone)
         # torch.compile the two objectives (True; "auto": on a CUDA device only).
         self.compile_step, self.compile_mode = compile, compile_mode
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
-        self._host_iteration: int | None = None  # see host_iteration
-        # Iterations done, in the state dict so that eta and logging resume exactly.
-        self.register_buffer("iteration", torch.zeros((), dtype=torch.long))
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
 
         skeleton = Skeleton.load(dataset)
@@ -152,8 +135,8 @@ class MotionPredictor(L.LightningModule):
         ]
         return optimizers, schedulers
 
-    def on_train_start(self) -> None:  # after a resume restored `iteration`
-        self._host_iteration, self._compiled = None, None
+    def on_train_start(self) -> None:
+        self._compiled = None
 
     def on_fit_start(self) -> None:
         # add_l2_gradient_ adds to the gradients after backward: they must not be scaled.
@@ -162,30 +145,13 @@ class MotionPredictor(L.LightningModule):
                 "trainer.precision=16-mixed scales the gradients, which the L2 term of eq. (9) "
                 "is added to unscaled; use trainer.precision=32 (default) or bf16-mixed"
             )
-        # The module owns its draws: with the regulariser two batches per iteration, for D and
-        # G (protocol 6.6); a resumed fit (`iteration` restored by now) continues its epoch.
-        dm = self.trainer.datamodule
-        if hasattr(dm, "draws_per_step"):
-            dm.draws_per_step = 2 if self.adversarial else 1
-            dm.resume_iteration = int(self.iteration)
-
-    def on_train_batch_end(self, outputs, batch, batch_idx: int) -> None:
-        # Lightning still runs this iteration's validation and the epoch end's checkpoint.
-        if self.iterations is not None and self.host_iteration >= self.iterations:
-            self.trainer.should_stop = True
-
-    @property
-    def host_iteration(self) -> int:
-        """`iteration`, read from the device once per fit (a host sync), then counted here."""
-        if self._host_iteration is None:
-            self._host_iteration = int(self.iteration)
-        return self._host_iteration
 
     def _eta(self) -> float:
-        eta = 1.0 if self.eta_schedule is None else float(self.eta_schedule(self.host_iteration))
+        # global_step: the iterations done (the Trainer's count, a host integer).
+        eta = 1.0 if self.eta_schedule is None else float(self.eta_schedule(self.global_step))
         if not 0.0 <= eta <= 1.0:  # checked here: the compiled step's tensor eta is not read
             raise ValueError(
-                f"the eta schedule gave {eta} at iteration {self.host_iteration}; eta must lie "
+                f"the eta schedule gave {eta} at iteration {self.global_step}; eta must lie "
                 "in [0, 1]"
             )
         return eta
@@ -247,6 +213,13 @@ class MotionPredictor(L.LightningModule):
 
     def training_step(self, batch: dict[str, Tensor], batch_idx: int) -> None:
         observed, future, action = batch["observed"], batch["future"], batch["action"]
+        if self.adversarial and not isinstance(batch.get("d"), dict):
+            raise ValueError(
+                "with the adversarial regulariser a training batch must carry the "
+                "discriminator's own windows under 'd' (observed, future, action), as the "
+                "datamodule's with data.discriminator_windows=true; this one has keys "
+                f"{sorted(batch)}. Set data.discriminator_windows=true or adversarial=none."
+            )
         eta_in = eta = self._eta()
         compiled, d_objective, g_objective = self._objectives()
         if compiled:
@@ -262,12 +235,10 @@ class MotionPredictor(L.LightningModule):
         d_losses: dict[str, Tensor] = {}
 
         if self.adversarial:
-            # D and G see different batches (protocol §6.6): two draws (on_fit_start).
-            (obs_d, obs_g), (fut_d, fut_g), (act_d, act_g) = (
-                t.chunk(2) for t in (observed, future, action)
-            )
+            # D and G see different windows (protocol §6.6).
+            d = batch["d"]
             self.toggle_optimizer(opt_d)
-            loss_d_adv, d_real = d_objective(obs_d, fut_d, act_d, eta_in)
+            loss_d_adv, d_real = d_objective(d["observed"], d["future"], d["action"], eta_in)
             loss_d = loss_d_adv.detach() + self.lambda_2_d * l2_penalty(self.discriminator)
             d_losses["loss_d"] = loss_d
             opt_d.zero_grad()
@@ -278,7 +249,6 @@ class MotionPredictor(L.LightningModule):
             self.untoggle_optimizer(opt_d)
             # Clones: a CUDA graph's outputs are overwritten by its next replay.
             logs |= {"train/loss_d": loss_d.clone(), "train/d_real": d_real.clone()}
-            observed, future, action = obs_g, fut_g, act_g
 
         if self.adversarial:
             self.toggle_optimizer(opt_g)
@@ -302,8 +272,6 @@ class MotionPredictor(L.LightningModule):
             logs["train/loss_adv"] = loss_adv.clone()
         for sch in schedulers if isinstance(schedulers, list) else [schedulers]:
             sch.step()
-        self._host_iteration = self.host_iteration + 1
-        self.iteration += 1
 
         logs |= {"train/loss_g": loss_g, "train/loss_recon": loss_recon, "train/loss_l2": loss_l2}
         logs["train/lr"] = _host(opt_g.param_groups[0]["lr"])
@@ -312,7 +280,7 @@ class MotionPredictor(L.LightningModule):
         self._recent_losses.append({k: v for k, v in logs.items() if "loss" in k})
         # The bar's number, on the host: Lightning reads it at every batch (a sync on a GPU).
         every = self._trainer.log_every_n_steps if self._trainer is not None else 0
-        if every and self.host_iteration % every == 0:
+        if every and self.global_step % every == 0:
             self.log("train/loss_recon_bar", _host(loss_recon.item()), prog_bar=True, logger=False)
         self.log_dict(logs, on_step=True, on_epoch=False, batch_size=observed.shape[0])
 
@@ -336,7 +304,7 @@ class MotionPredictor(L.LightningModule):
         for objective in objectives:
             bad = {k: v.item() for k, v in objective.items() if not torch.isfinite(v)}
             if bad:
-                self._stop(f"non-finite loss at training iteration {self.host_iteration}: {bad}")
+                self._stop(f"non-finite loss at training iteration {self.global_step}: {bad}")
 
     def forward(self, observed: Tensor, future_len: int, action: Tensor | None = None) -> Tensor:
         """Autoregressive prediction in normalised space (eta = 1, no ground truth)."""
@@ -393,7 +361,7 @@ class MotionPredictor(L.LightningModule):
         if bad:
             names = ", ".join(bad[:3]) + (", ..." if len(bad) > 3 else "")
             self._stop(
-                f"non-finite weights after training iteration {int(self.iteration)} "
+                f"non-finite weights after training iteration {self.global_step} "
                 f"({names}); no checkpoint was written from them"
             )
 
@@ -414,6 +382,7 @@ class MotionPredictor(L.LightningModule):
             checkpoint["rng"]["cuda"] = torch.cuda.get_rng_state_all()
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        upgrade(checkpoint)  # before Lightning loads the state dict
         rng = checkpoint.get("rng", {})
         if "torch" in rng:
             torch.set_rng_state(rng["torch"])

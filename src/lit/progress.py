@@ -42,14 +42,14 @@ class ProgressLog(Callback):
 
     def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         self._start = self._last = time.monotonic()
-        self._first = int(pl_module.iteration)
+        self._first = trainer.global_step
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
         now = time.monotonic()
         if now - self._last < self.every_s or not trainer.is_global_zero:
             return
         self._last = now
-        iteration = int(pl_module.iteration)
+        iteration = trainer.global_step
         rate = (iteration - self._first) / max(now - self._start, 1e-9)
         losses = {
             name.removeprefix("train/"): float(value)

@@ -122,9 +122,8 @@ def restore_run(
     from_checkpoint = not (run_dir / "config.yaml").is_file()
     if from_checkpoint:
         # The sections the checkpoint stores; the length, schedule and seed come from the
-        # command line, and an epoch stays `val_every` iterations (set below, not compared).
+        # command line.
         saved = OmegaConf.create(read_checkpoint(ckpt)["motion"]["config"])
-        _put(saved, "data.steps_per_epoch", _ABSENT)
     else:
         saved = OmegaConf.load(run_dir / "config.yaml")
     run_choices = None
@@ -138,8 +137,6 @@ def restore_run(
     for key in FROM_HERE:  # unresolved: they point at this run's folder, not yet created
         _put(restored, key, _raw(raw, key))
     _put(restored, "ckpt_path", str(ckpt))
-    if from_checkpoint:
-        _put(restored, "data.steps_per_epoch", "${val_every}")
     parsed = OverridesParser.create().parse_overrides(list(overrides))
     parents = run_dir.parents  # <log_dir>/<task>/runs/<name>/<time>, .../multiruns/<time>/<job>
     if len(parents) > 3 and parents[1].name in ("runs", "multiruns"):

@@ -92,9 +92,8 @@ def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
     from src.lit.checkpoints import read_checkpoint
 
     ckpt = read_checkpoint(path)
-    iteration = ckpt["state_dict"].get("iteration")
     missing = list(ckpt.get("motion", {}).get("missing_files") or [])
-    return None if iteration is None else int(iteration), missing
+    return ckpt.get("global_step"), missing
 
 
 def load_run(path: Path, root: Path) -> dict:

@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 
 from src.lit.factory import ConfigError
-from src.lit.predictor import averages
+from src.metrics.averages import averages
 from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import ReportingError
 
