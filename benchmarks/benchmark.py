@@ -129,12 +129,13 @@ def module(kind: str, device: torch.device) -> MotionPredictor:
 
 
 def batch(B: int, device, adversarial: bool) -> dict:
-    n = 2 * B if adversarial else B  # the datamodule draws two batches (D and G) per step
-    return {
-        "observed": torch.randn(n, OBS, D, device=device),
-        "future": torch.randn(n, FUT, D, device=device),
-        "action": torch.randint(0, A, (n,), device=device),
+    windows = {
+        "observed": torch.randn(B, OBS, D, device=device),
+        "future": torch.randn(B, FUT, D, device=device),
+        "action": torch.randint(0, A, (B,), device=device),
     }
+    # With the regulariser the datamodule adds D's own windows (protocol §6.6).
+    return {**windows, "d": batch(B, device, False)} if adversarial else windows
 
 
 def bench_training(device, batches, repeats) -> tuple[dict, dict, dict]:

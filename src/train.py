@@ -30,7 +30,7 @@ from src.lit import checkpoints as ck
 from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
-from src.lit.progress import ProgressLog
+from src.lit.progress import ProgressLog, iteration_bar
 from src.lit.resume import describe, prepare_training
 from src.lit.run_folders import holds_run
 from src.metrics.averages import averages
@@ -89,6 +89,7 @@ def train(cfg: DictConfig) -> float:
     every = cfg.progress_every_s
     callbacks = [*FrameStripLogger.from_config(cfg)]
     callbacks += [] if every is None else [ProgressLog(cfg.iterations, every)]
+    callbacks += iteration_bar() if cfg.trainer.get("enable_progress_bar", True) else []
     checkpoints = ck.BestCheckpoint(out_dir / "checkpoints")
     last = ck.LastCheckpoint(out_dir / "checkpoints", every=cfg.checkpoint_every)
     module.last_checkpoint = last.path

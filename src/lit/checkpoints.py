@@ -186,14 +186,12 @@ class BestCheckpoint(ModelCheckpoint):
 
 def upgrade(ckpt: dict) -> dict:
     """A checkpoint of commit a7603dd or before, in today's form: the module counted its
-    iterations in an `iteration` buffer (now the Trainer's global_step, which it always equalled)
-    and the data config had a `steps_per_epoch` (an epoch was `val_every` iterations)."""
+    iterations in an `iteration` buffer (now the Trainer's global_step; before issue 40 that
+    step counted 2 per adversarial iteration, so the buffer is the count) and the data config
+    had a `steps_per_epoch` (an epoch was `val_every` iterations)."""
     iteration = ckpt.get("state_dict", {}).pop("iteration", None)
-    if iteration is not None and "global_step" in ckpt and int(iteration) != ckpt["global_step"]:
-        raise CheckpointError(
-            f"the checkpoint counts {int(iteration)} iterations and its Trainer state "
-            f"{ckpt['global_step']} steps: it was written by an incompatible version"
-        )
+    if iteration is not None:
+        ckpt["global_step"] = int(iteration)
     data = ckpt.get("motion", {}).get("config", {}).get("data") or {}
     data.pop("steps_per_epoch", None)
     return ckpt

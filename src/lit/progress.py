@@ -5,12 +5,13 @@ not a terminal (`OffTerminalOnly`, conf/hydra/default.yaml)."""
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 import sys
 import time
 
 import lightning as L
-from lightning.pytorch.callbacks import Callback
+from lightning.pytorch.callbacks import Callback, RichProgressBar
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,20 @@ class ProgressLog(Callback):
             if name.startswith("train/loss") and not name.endswith("_bar")
         }
         log.info("%s", progress_line(iteration, self.total, rate, losses))
+
+
+class IterationBar(RichProgressBar):
+    """Lightning's Rich bar labelled in iterations: the schedule's one endless epoch would read
+    "Epoch 0/-2"."""
+
+    def _get_train_description(self, current_epoch: int) -> str:
+        return "iterations"
+
+
+def iteration_bar() -> list[Callback]:
+    """IterationBar where rich is installed (where Lightning would show its Rich bar); else
+    Lightning's own bar."""
+    return [IterationBar()] if importlib.util.find_spec("rich") else []
 
 
 class OffTerminalOnly(logging.Filter):
