@@ -54,6 +54,8 @@ def silence_false_warnings() -> None:
     # Lightning 2.6 builds torch's deprecated LeafSpec itself; nothing a user can change.
     leaf_spec = r"`isinstance\(treespec, LeafSpec\)` is deprecated"
     warnings.filterwarnings("ignore", message=leaf_spec, category=FutureWarning)
+    # A resume continues in its run's checkpoints/; any other run there is refused before.
+    warnings.filterwarnings("ignore", message="Checkpoint directory .* exists and is not empty")
     # Lightning's advertisements ("💡 Tip: ... try litlogger") and its Ctrl-C line.
     tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
     tips.addFilter(no_tips)  # added once however often called

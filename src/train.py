@@ -4,7 +4,7 @@ Hydra's sweepers minimise.
     python -m src.train model=conv_s2s data=cmu
     python -m src.train experiment=li2018_h36m
     python -m src.train -m model=conv_s2s,gru_s2s data=cmu      (a sweep)
-    python -m src.train resume=outputs/train/runs/<run>/<time>   (resume: the run's own settings)
+    python -m src.train resume=outputs/train/runs/<run>/<time>   (resume in the run's folder)
     python -m src.train ckpt_path=outputs/train/runs/<run>/<time>/checkpoints/last.ckpt
 """
 
@@ -46,8 +46,10 @@ def train(cfg: DictConfig) -> float:
     choices = OmegaConf.to_container(hydra_cfg.runtime.choices) if hydra_cfg else {}
     cfg, resume = prepare_training(cfg, overrides, choices)
     out_dir = Path(cfg.paths.output_dir)
+    # A resume from the command line continues in its run's folder (run_folders.PrepareRun).
+    in_place = resume is not None and out_dir.resolve() == resume.run_dir.resolve()
     # E.g. a folder given in-process that holds a run; DDP's other ranks use rank 0's folder.
-    if rank_zero_only.rank == 0 and holds_run(out_dir):
+    if rank_zero_only.rank == 0 and holds_run(out_dir) and not in_place:
         raise ConfigError(
             f"the run folder {out_dir} already holds another run; nothing was overwritten. "
             "Start the run again (it gets a new timestamped folder) or set hydra.run.dir."
@@ -110,6 +112,8 @@ def train(cfg: DictConfig) -> float:
             evaluated = [a for a in dm.actions if a not in dm.absent_actions]
             sets = averages(evaluated, module.untrained_actions)
             add_error_curve_layout(logger.experiment, dm.actions, module.horizons, sets)
+        if in_place:
+            keep_earlier(out_dir, done, cfg)
         OmegaConf.save(cfg, out_dir / "config.yaml", resolve=True)
 
     start = time.perf_counter()
@@ -142,6 +146,25 @@ def train(cfg: DictConfig) -> float:
         log.info("best checkpoint: %s", best_path or "none (no validation finished)")
         log.info("best average validation Euler error: %.4f", score)
     return score
+
+
+def keep_earlier(run: Path, iteration: int, cfg: DictConfig) -> None:
+    """What a run continued in its own folder wrote there before, kept: the summary of a run
+    that had finished (trained longer now) and a config.yaml whose settings change (the length,
+    Trainer keys, where files live), each as <name>-iterNNNNNN.yaml."""
+    config = run / "config.yaml"
+    same = config.is_file() and OmegaConf.load(config) == OmegaConf.create(
+        OmegaConf.to_container(cfg, resolve=True)
+    )
+    for path in (run / "summary.yaml", *([] if same else [config])):
+        if path.is_file():
+            kept = run / f"{path.stem}-iter{iteration:06d}.yaml"
+            n = 0
+            while kept.exists():  # resumed at this iteration before
+                n += 1
+                kept = run / f"{path.stem}-iter{iteration:06d}-{n}.yaml"
+            path.rename(kept)
+            log.info("kept the run's earlier %s as %s", path.name, kept.name)
 
 
 @hydra_entry("train", started="config.yaml")  # refused before it is written: the folder goes

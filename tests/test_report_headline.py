@@ -387,6 +387,10 @@ def test_the_segments_of_a_resumed_run_are_named_as_such_and_a_copy_as_a_copy():
             "seed 3: the resumed run `o/s3/t3` (4,000 iterations) was kept; it continues 2 "
             "earlier segment(s) of itself: `t1` (533), `t2` (2,839)"
         ]
+    # A run resumed in its own folder is one run, not a segment of itself.
+    in_place = segment("/o/s4/t1", 4000, "/o/s4/t1")
+    (group,) = group_runs([in_place])
+    assert group.runs == [in_place] and group.left_out == []
     # A copy that was itself resumed from another folder is still a copy.
     copy_["config"]["ckpt_path"] = "/o/elsewhere/checkpoints/last.ckpt"
     (group,) = group_runs([last, second, first, copy_])

@@ -1,7 +1,7 @@
-"""Kill and resume: a run killed with SIGKILL between two epochs and resumed from its
-last.ckpt ends bit for bit where an uninterrupted run of the same length ends (CPU, fixed seed),
-with the adversarial regulariser on: both optimisers and LR schedulers, the eta schedule's
-iteration counter, the training sampler's epoch and the torch random state all resume."""
+"""Kill and resume: a run killed with SIGKILL and resumed from its last.ckpt continues in its
+own folder and ends bit for bit where an uninterrupted run of the same length ends (CPU, fixed
+seed), with the adversarial regulariser on: both optimisers and LR schedulers, the eta
+schedule's iteration counter, the training sampler's position and the torch random state."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.reporting.tensorboard import validation_curve
 from tests.conftest import ROOT
 
 # A tiny network so three subprocess runs fit in a slow test; the adversarial regulariser is on
@@ -156,9 +157,9 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     (run_b,) = _run_folders(log_b)
     assert not (run_b / "summary.yaml").exists()
     last_b = run_b / "checkpoints" / "last.ckpt"
-    before = last_b.read_bytes()
+    overrides = (run_b / ".hydra" / "overrides.yaml").read_text()
 
-    # Resume B with the same command; Hydra gives it a new folder.
+    # Resume B with the same command: it continues in its own folder.
     time.sleep(1.1)  # run folders are timestamped to the second
     proc = subprocess.run(
         _train_cmd(log_b, ramp, f"ckpt_path={last_b}"),
@@ -169,10 +170,12 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
         timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    folders = _run_folders(log_b)
-    assert len(folders) == 2 and run_b in folders
-    (resumed,) = [f for f in folders if f != run_b]
-    assert last_b.read_bytes() == before, "resuming wrote into the killed run's folder"
+    assert _run_folders(log_b) == [run_b]
+    resumed = run_b
+    # Hydra's record of the run is kept; the resume's is beside it.
+    assert (run_b / ".hydra" / "overrides.yaml").read_text() == overrides
+    (record,) = (run_b / ".hydra").glob("resumed-*/overrides.yaml")
+    assert f"ckpt_path={last_b}" in record.read_text()
 
     sum_a = OmegaConf.to_container(OmegaConf.load(run_a / "summary.yaml"))
     sum_b = OmegaConf.to_container(OmegaConf.load(resumed / "summary.yaml"))
@@ -187,9 +190,11 @@ def test_killed_run_resumes_bit_for_bit(tmp_path, synthetic_data_dir):
     for part in ("state_dict", "optimizer_states", "lr_schedulers", "rng"):
         _same(end_a[part], end_b[part], part)
     assert len(end_a["optimizer_states"]) == 2 and len(end_a["lr_schedulers"]) == 2
-    # Killed after iteration 4's validation: the resumed run neither repeats nor skips one.
+    # Killed after iteration 4's validation: the resumed run neither repeats nor skips one,
+    # and its log and TensorBoard curves continue the killed run's.
     log = (resumed / "train.log").read_text()
-    assert re.findall(r"validation at iteration (\d+)", log) == ["6"], log[-3000:]
+    assert re.findall(r"validation at iteration (\d+)", log) == ["2", "4", "6"], log[-3000:]
+    assert validation_curve(resumed) == validation_curve(run_a) != {}
 
 
 SIGTERM_DURING_ITERATION = """
@@ -297,8 +302,8 @@ def test_ctrl_c_between_validations_saves_and_resumes_exactly(tmp_path, syntheti
         timeout=600,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
-    (resumed,) = [f for f in _run_folders(log_b) if f != run_b]
+    assert _run_folders(log_b) == [run_b]  # continued in its own folder
     end_a = torch.load(run_a / "checkpoints" / "last.ckpt", weights_only=True)
-    end_b = torch.load(resumed / "checkpoints" / "last.ckpt", weights_only=True)
+    end_b = torch.load(last_b, weights_only=True)
     for part in ("state_dict", "optimizer_states", "lr_schedulers", "rng"):
         _same(end_a[part], end_b[part], part)

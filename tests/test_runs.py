@@ -257,12 +257,13 @@ def test_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, synthetic_d
     assert died.returncode == 137, died.stderr[-3000:]
     (run_b,) = _runs(tmp_path / "b")
     assert not (run_b / "summary.yaml").exists()
+    first = torch.load(run_b / "checkpoints" / "last.ckpt", weights_only=False)
 
     resumed = _cli("src.train", tmp_path / "b", synthetic_data_dir, f"resume={run_b}")
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert f"resuming the run {run_b} at iteration 2" in resumed.stdout
-    (new,) = [r for r in _runs(tmp_path / "b") if r != run_b]
-    assert new.parent == run_b.parent  # under the run's own name, not the defaults'
+    assert _runs(tmp_path / "b") == [run_b]  # in its own folder, not a new one
+    new = run_b
     config = OmegaConf.load(new / "config.yaml")
     assert (config.iterations, config.val_every, config.model.net.nf) == (6, 2, 2)
 
@@ -272,7 +273,6 @@ def test_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, synthetic_d
     for key in ("final_val_euler_avg", "final_val_mpjpe_avg", "best_val_euler_avg"):
         assert sum_b[key] == sum_a[key], key  # exact: bit for bit on CPU
     # Training time: the first segment's (3 s of sleep in it) carried over by the checkpoint.
-    first = torch.load(run_b / "checkpoints" / "last.ckpt", weights_only=False)
     t1 = first["callbacks"]["Timer"]["time_elapsed"]["train"]
     assert t1 >= 3
     # This process's training alone cannot exceed its own wall time; with t1 carried, it does.
@@ -299,14 +299,19 @@ def test_resumed_run_ends_where_the_uninterrupted_run_ends(tmp_path, synthetic_d
     assert again.returncode == 2
     assert "nothing to resume" in _error_line(again) and "iterations=N" in _error_line(again)
     assert _runs(tmp_path / "a") == [run_a]
-    # As that error says, iterations=N trains it longer: on to N, one more validation period.
+    assert OmegaConf.to_container(OmegaConf.load(run_a / "summary.yaml")) == sum_a
+    # As that error says, iterations=N trains it longer: on to N, one more validation period,
+    # in its own folder; what the 6 iterations wrote is kept beside.
     longer = _cli(
         "src.train", tmp_path / "a", synthetic_data_dir, f"resume={run_a}", "iterations=8"
     )
     assert longer.returncode == 0, longer.stderr[-3000:]
-    (run_d,) = [r for r in _runs(tmp_path / "a") if r != run_a]
-    sum_d = OmegaConf.to_container(OmegaConf.load(run_d / "summary.yaml"))
+    assert _runs(tmp_path / "a") == [run_a]
+    sum_d = OmegaConf.to_container(OmegaConf.load(run_a / "summary.yaml"))
     assert (sum_d["resumed_at"], sum_d["iterations"]) == (6, 8)
+    assert OmegaConf.to_container(OmegaConf.load(run_a / "summary-iter000006.yaml")) == sum_a
+    assert OmegaConf.load(run_a / "config-iter000006.yaml").iterations == 6
+    assert OmegaConf.load(run_a / "config.yaml").iterations == 8
 
 
 # ------------------------------------------------------------------ run folders

@@ -45,6 +45,11 @@ class Resume:
     from_checkpoint: bool  # no config.yaml beside it: sections stored in the checkpoint
     run_choices: dict[str, str] | None  # the run's config-group options, when recorded
 
+    @property
+    def in_place(self) -> bool:
+        """From the command line, the run continues in its own folder (it has one)."""
+        return not self.from_checkpoint
+
 
 def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
     """The checkpoint of `resume=<run folder>` (its checkpoints/last.ckpt) or `ckpt_path=`."""

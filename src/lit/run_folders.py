@@ -1,7 +1,8 @@
 """Run folders, settled before anything is written, and the one way a refusal reaches the user.
 Every run gets a new folder (`<time>`, `<time>-1`, ...); one named with `hydra.run.dir=...` is
-refused when it holds a run. A refused config creates no folder (`PrepareRun`); what is found
-later (a misspelt action) removes the folder made for it."""
+refused when it holds a run. A resume continues in its run's own folder, Hydra's record of the
+resume beside the run's (`.hydra/resumed-<time>/`). A refused config creates no folder
+(`PrepareRun`); what is found later (a misspelt action) removes the folder made for it."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import os
 import re
 import shutil
 import sys
+import time
 from pathlib import Path
 from typing import NoReturn
 
@@ -29,7 +31,7 @@ from src.lit.checkpoints import CheckpointError
 from src.lit.config import ConfigError
 from src.lit.factory import PROJECT_ROOT
 from src.lit.predictor import NonFiniteLossError
-from src.lit.resume import prepare_training
+from src.lit.resume import Resume, prepare_training
 
 # A user's mistake (bad data, config, checkpoint, a diverged run): printed as one line.
 USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
@@ -187,22 +189,27 @@ class PrepareRun(Callback):
         if rank_zero_only.rank != 0:  # DDP's other ranks: Lightning passes rank 0's folder
             return
         try:
-            if config_name == "train":
-                self._prepare_training(config)
-            folder = _claim(config, "hydra.run.dir")
+            resume = self._prepare_training(config) if config_name == "train" else None
+            if resume is not None and resume.in_place and not _given(config, "hydra.run.dir"):
+                folder = resume.run_dir  # continued where it is: its checkpoints, log, curves
+                stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
+                with read_write(config.hydra):  # the run's own .hydra/ files stay as they are
+                    config.hydra.output_subdir = f"{config.hydra.output_subdir}/resumed-{stamp}"
+            else:
+                folder = _claim(config, "hydra.run.dir")
         except USER_ERRORS as err:
             refuse(err)
         with read_write(config.hydra.run):
             config.hydra.run.dir = str(folder)
 
     @staticmethod
-    def _prepare_training(config: DictConfig) -> None:
+    def _prepare_training(config: DictConfig) -> Resume | None:
         task = OmegaConf.masked_copy(config, [k for k in config if k != "hydra"])
         overrides = list(config.hydra.overrides.task)
         choices = OmegaConf.to_container(config.hydra.runtime.choices)
         restored, resume = prepare_training(task, overrides, choices)
         if resume is None:
-            return
+            return None
         # The run's settings become this job's, before its folder is named from them
         # (run_name, task_name, paths.log_dir); .hydra/ records the run's options.
         given = {o.split("=", 1)[0].lstrip("+~") for o in overrides}
@@ -212,6 +219,7 @@ class PrepareRun(Callback):
             for group, option in (resume.run_choices or {}).items():
                 if group in config.hydra.runtime.choices and group not in given:
                     config.hydra.runtime.choices[group] = option
+        return resume
 
     def on_multirun_start(
         self, config: DictConfig, config_name: str | None = None, **kwargs

@@ -94,6 +94,8 @@ def _keep_one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
         segments, before = set(), run  # the folders of the runs a resumed run continues
         while (ckpt := before["config"].get("ckpt_path")) and Path(ckpt).is_absolute():
             folder = str(Path(ckpt).resolve().parent.parent)  # <run>/checkpoints/<file>.ckpt
+            if folder == before.get("folder"):  # resumed in its own folder: one segment
+                break
             stop = folder in segments or folder not in by_folder
             segments.add(folder)
             if stop:
