@@ -163,6 +163,7 @@ BUILDS_NOTHING = {
         for node in (
             "model.net<ConvSeq2Seq>",
             "model.net<GRUSeq2Seq>",
+            "model.net<HisRep>",
             "model.net<ResidualMLP>",
             "model.net<RunningAverage>",
             "model.net<ZeroVelocity>",
@@ -198,6 +199,7 @@ TINY_CONV = [
 # The GRU and the MLP with the other groups they choose themselves (no regulariser, eta 1).
 TINY_GRU = [*DATA, "model=gru_s2s", "model.net.hidden=8", *DECAY]
 TINY_MLP = [*DATA, "model=residual_mlp", "model.net.hidden=8", *DECAY]
+TINY_HISREP = [*DATA, "model=hisrep", "model.net.d_model=8", "model.net.num_stage=1", *DECAY]
 
 
 def with_option(cfg: DictConfig, group: str, option: str) -> DictConfig:
@@ -226,6 +228,7 @@ def bases(tmp_path_factory, synthetic_data_dir) -> dict[str, Any]:
         "running_avg": with_option(conv, "model", "running_avg_2"),
         "gru": objects.compose(TINY_GRU, out / "gru", synthetic_data_dir),
         "mlp": objects.compose(TINY_MLP, out / "mlp", synthetic_data_dir),
+        "hisrep": objects.compose(TINY_HISREP, out / "hisrep", synthetic_data_dir),
     }
 
 
@@ -454,6 +457,11 @@ CHANGES: dict[str, Change] = {
     f"{GRU}.tied": Change("gru", False, network_changes),
     f"{GRU}.residual": Change("gru", False, network_changes),
     f"{GRU}.one_hot": Change("gru", False, network_changes),
+    "model.net<HisRep>.T": Change("hisrep", 12, network_changes),
+    "model.net<HisRep>.dct_n": Change("hisrep", 10, network_changes),
+    "model.net<HisRep>.d_model": Change("hisrep", 6, network_changes),
+    "model.net<HisRep>.num_stage": Change("hisrep", 2, network_changes),
+    "model.net<HisRep>.dropout": Change("hisrep", 0.0, network_changes),
     "model.net<ResidualMLP>.C": Change("mlp", 5, network_changes),
     "model.net<ResidualMLP>.hidden": Change("mlp", 6, network_changes),
     "model.net<RunningAverage>.k": Change("running_avg", 4, network_changes),
@@ -713,3 +721,40 @@ def test_martinez2017_res_sup_builds_the_reference_settings(tmp_path, bases, syn
     assert norm > 5.0, "the check needs a gradient above the clip norm"
     for name, g in zip(params, raw, strict=True):
         torch.testing.assert_close(first.grads[name], g * 5.0 / (norm + 1e-6), rtol=1e-4, atol=1e-8)
+
+
+def test_mao2020_h36m_builds_the_authors_settings(tmp_path, synthetic_data_dir):
+    """shared docs/hisrep.md §0, §1, §6: S1, S6-S9 with the root zeroed and raw radians, windows
+    of 50 + 10 frames, batch 32; Adam 5e-4 x 0.1^(1/50) before every epoch of 4,468
+    iterations, 16 epochs; the published network (3,076,904 parameters on the 48 dims); the
+    generator steps with the gradient of the authors' L1 objective, not of eq. (7)."""
+    cfg = experiment("mao2020_h36m", tmp_path, synthetic_data_dir)
+    assert (cfg.iterations, cfg.val_every, cfg.data.batch_size) == (16 * 4468, 4468, 32)
+    assert list(cfg.data.train_subjects) == [1, 6, 7, 8, 9] and not cfg.adversarial.enabled
+    data = {k: cfg.data[k] for k in ("zero_root", "normalize", "train_future_len")}
+    assert data == {"zero_root": True, "normalize": False, "train_future_len": 10}
+    # model=hisrep brings these data settings to any dataset: here the synthetic one.
+    dm = objects.datamodule(
+        objects.compose(["data=synthetic", "model=hisrep"], tmp_path / "s", synthetic_data_dir).data
+    )
+    assert dm.pose_dim == 48
+    full = objects.module(cfg, dm)
+    net = objects.networks(full)[0]
+    assert sum(p.numel() for p in net.parameters()) == 3_076_904
+    (opt,) = objects.optimisers(full)[0]
+    assert type(opt) is torch.optim.Adam and opt.param_groups[0]["weight_decay"] == 0
+    epoch = 4468
+    rates = lr_at(full, [0, epoch - 1, epoch, 15 * epoch])
+    want = [5e-4 * 0.1 ** (e / 50) for e in (1, 1, 2, 16)]  # epoch 1 already decayed once
+    assert rates == [pytest.approx([r], rel=1e-5) for r in want]
+
+    small = objects.module(OmegaConf.merge(cfg, {"model": {"net": {
+        "d_model": 8, "num_stage": 1, "dropout": 0.0}}}), dm)  # fmt: skip
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["future"].shape[1] == 10
+    (step,) = objects.train_steps(small, [batch]).of("g")
+    net = objects.networks(small)[0]
+    set_weights(net, step.weights)
+    want = gradient(net.train().objective(batch["observed"], batch["future"]), net)
+    for name, g in step.grads.items():
+        torch.testing.assert_close(g, want[name], rtol=1e-4, atol=1e-7, msg=name)

@@ -132,6 +132,31 @@ def test_train_batches(synthetic):
     assert not torch.equal(b["d"]["observed"], b["observed"])
 
 
+def test_mao_et_als_data_settings_root_zeroed_raw_radians_ten_frames_to_train(tmp_path):
+    """zero_root: the root's 6 columns are 0 in every frame, so the std rule drops them (54 -> 48
+    used); normalize=false: the model sees the used columns as they are, and unnormalize gives
+    the rest back as the training mean; train_future_len: training windows of 50 + 10 frames
+    while the evaluation keeps 25."""
+    dm = SyntheticDataModule(
+        tmp_path, zero_root=True, normalize=False, train_future_len=10, **SMALL
+    )
+    dm.prepare_data()
+    dm.setup("fit")
+    used = [c for c in H36M_USED_COLUMNS if c >= 6]
+    assert dm.normalizer.dim_used.tolist() == used and dm.pose_dim == 48
+    raw = torch.from_numpy(dm.raw_window(0))
+    assert not raw[:, :6].any()
+    item = dm.val_dataloader().dataset[0]
+    torch.testing.assert_close(item["observed"], raw[:50, used], rtol=0, atol=0)
+    full = dm.normalizer.unnormalize(item["future"])
+    torch.testing.assert_close(full[:, used], raw[50:, used], rtol=0, atol=0)
+    unused = [c for c in range(99) if c not in used]
+    assert torch.equal(full[:, unused], dm.normalizer.mean[unused].expand(25, -1))
+    batch = next(iter(dm.train_dataloader()))
+    assert batch["observed"].shape == (4, 50, 48) and batch["future"].shape == (4, 10, 48)
+    assert next(iter(dm.val_dataloader()))["future"].shape == (5, 25, 48)
+
+
 def test_batches_are_pinned_only_for_a_gpu_trainer(synthetic):
     from types import SimpleNamespace
 
@@ -303,6 +328,11 @@ def test_module_unpacks_an_archive(tmp_path, monkeypatch):
         ({"train_subjects": (1, 5)}, r"test_subject=5 is also a training subject"),
         ({"future_len": 101}, r"srnn test windows reserve 150 frames"),
         ({"eval_seed": 2**32}, r"eval_seed must be below 2\*\*32"),
+        ({"train_future_len": 0}, r"train_future_len must be an integer >= 1"),
+        (
+            {"train_future_len": 10, "discriminator_windows": True},
+            r"train_future_len=10 with the adversarial regulariser.*adversarial=none",
+        ),
     ],
 )
 def test_invalid_arguments(tmp_path, kwargs, pattern):

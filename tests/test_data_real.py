@@ -78,6 +78,25 @@ def test_h36m_54_used_dims_are_the_protocol_columns(h36m):
     torch.testing.assert_close(h36m.normalizer.std[:6], expected, rtol=0.1, atol=0)
 
 
+# Mao et al.'s hard-coded 48 dimensions (shared docs/hisrep.md §1).
+HISREP_DIMS = [6, 7, 8, 9, 12, 13, 14, 15, 21, 22, 23, 24, 27, 28, 29, 30, *range(36, 48)]
+HISREP_DIMS += [*range(51, 58), 60, 61, 62, *range(75, 82), 84, 85, 86]
+
+
+def test_h36m_with_the_root_zeroed_uses_mao_et_als_48_dims_in_radians(h36m, archives, data_dir):
+    """HisRep's data settings: the std rule over S1, S6-S9 with the root zeroed keeps exactly
+    the authors' list, and normalize=false hands the model the raw angles."""
+    dm = H36MDataModule(data_dir, archive_dir=archives, allow_partial=True, zero_root=True,
+                        normalize=False, train_subjects=[1, 6, 7, 8, 9])  # fmt: skip
+    dm.setup("fit")
+    assert dm.normalizer.dim_used.tolist() == HISREP_DIMS
+    w = dm.eval_windows[0]
+    raw = torch.from_numpy(dm.raw_window(0)[: dm.observed_len])
+    assert not raw[:, :6].any() and w == h36m.eval_windows[0]  # the same SRNN windows
+    observed = dm.val_dataloader().dataset[0]["observed"]
+    torch.testing.assert_close(observed, raw[:, HISREP_DIMS], rtol=0, atol=0)
+
+
 def test_h36m_reference_angle_wrap_changes_only_the_root_translation(h36m, data_dir):
     """Protocol §2.3 (verified there): Li et al.'s wrap leaves the 54 used columns and every
     joint alone (no joint turns beyond 2pi) and shortens the root translation."""

@@ -198,3 +198,16 @@ def test_every_parameter_gets_a_gradient_from_the_one_step_l1_loss():
     loss.backward()
     missing = [n for n, p in model.named_parameters() if p.grad is None or not p.grad.any()]
     assert not missing, missing
+
+
+def test_objective_is_the_authors_l1_over_the_last_20_frames_summed_over_dims():
+    """With gc7 at zero the step returns P (the last 10 observed frames, then the last one 10
+    times): the first 10 frames cost nothing, each future frame sum_k |x_{N-1,k} - y_{t,k}|."""
+    model = small()
+    torch.nn.init.zeros_(model.gc7.W)
+    torch.nn.init.zeros_(model.gc7.b)
+    x, y = observed(), observed(seed=2)[:, :25]  # a 25-frame future: only the first T count
+    want = (x[:, -1:] - y[:, :T]).abs().sum(dim=2).sum(dim=1).mean() / L
+    torch.testing.assert_close(model.objective(x, y), want, rtol=1e-6, atol=1e-6)
+    with pytest.raises(ValueError, match="train_future_len"):
+        model.objective(x, y[:, : T - 1])

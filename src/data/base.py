@@ -84,6 +84,9 @@ class MotionDataModule(L.LightningDataModule):
         actions: str | Iterable[str] = "all",
         observed_len: int = 50,
         future_len: int = 25,
+        train_future_len: int | None = None,
+        zero_root: bool = False,
+        normalize: bool = True,
         batch_size: int = 16,
         eval_batch_size: int = 256,
         discriminator_windows: bool = False,
@@ -104,6 +107,19 @@ class MotionDataModule(L.LightningDataModule):
         self.observed_len = _positive("observed_len", observed_len)
         self.future_len = _positive("future_len", future_len)
         self.window_len = self.observed_len + self.future_len
+        # Training windows may predict fewer frames than the evaluation (HisRep: 10 of 25).
+        self.train_future_len = _positive(
+            "train_future_len", self.future_len if train_future_len is None else train_future_len
+        )
+        if discriminator_windows and self.train_future_len != self.future_len:
+            raise DataError(
+                f"data.train_future_len={train_future_len} with the adversarial regulariser: the "
+                f"discriminator judges observed_len + future_len = {self.window_len} frames. Set "
+                "train_future_len=null, or adversarial=none."
+            )
+        # The root's 6 columns (global translation and rotation) set to 0 when loaded, as Mao et
+        # al.: the std rule then leaves them out. normalize=false: the used columns in radians.
+        self.zero_root, self.normalize = bool(zero_root), bool(normalize)
         self.batch_size = _positive("batch_size", batch_size)
         self.eval_batch_size = _positive("eval_batch_size", eval_batch_size)
         # With the regulariser a batch carries D's own windows under "d" (protocol §6.6).
@@ -200,6 +216,11 @@ class MotionDataModule(L.LightningDataModule):
         train = [e for e in train if e.relpath not in missing]
         present_test = [e for e in test if e.relpath not in missing]
         raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
+        if self.zero_root:
+            raw = {
+                k: np.concatenate([np.zeros_like(v[:, :6]), v[:, 6:]], axis=1)
+                for k, v in raw.items()
+            }
         if not train and not self._eval_only:
             raise DataError(
                 f"no training file of the configured actions exists under {self.data_dir} "
@@ -208,12 +229,15 @@ class MotionDataModule(L.LightningDataModule):
 
         # Statistics from the raw 50 Hz training frames, before downsampling (protocol §2.1).
         normalizer = self._given_normalizer or Normalizer.from_sequences(
-            [raw[e.relpath] for e in train], wrap=self.angle_wrap
+            [raw[e.relpath] for e in train], wrap=self.angle_wrap, scale=self.normalize
         )
         seqs = [normalizer.normalize(torch.from_numpy(raw[e.relpath][::2].copy())) for e in train]
         self._train_lengths = [len(s) for s in seqs]
         self._train_dataset = WindowDataset(
-            seqs, [self.actions.index(e.action) for e in train], self.observed_len, self.future_len
+            seqs,
+            [self.actions.index(e.action) for e in train],
+            self.observed_len,
+            self.train_future_len,
         )
         # Not known when evaluating a checkpoint (no training file is read): it carries its own.
         if not self._eval_only:
@@ -295,7 +319,7 @@ class MotionDataModule(L.LightningDataModule):
         draws = 2 if self.discriminator_windows else 1
         sampler = TrainWindowSampler(
             self._train_lengths,
-            self.window_len,
+            self.observed_len + self.train_future_len,
             TRAIN_START_LOW[self.dataset_name],
             self.batch_size,
             draws,

@@ -51,10 +51,16 @@ class Normalizer(nn.Module):
 
     @classmethod
     def from_sequences(
-        cls, sequences: Sequence[np.ndarray], threshold: float = STD_THRESHOLD, wrap: bool = False
+        cls,
+        sequences: Sequence[np.ndarray],
+        threshold: float = STD_THRESHOLD,
+        wrap: bool = False,
+        scale: bool = True,
     ) -> Normalizer:
         """Statistics of the frames of all ``sequences`` (N_i, F), not concatenated; two float64
-        passes (mean, squared deviations) keep the columns that decide the used set exact."""
+        passes (mean, squared deviations) keep the columns that decide the used set exact.
+        ``scale=False``: the used columns pass unchanged (mean 0, std 1; Mao et al. train on
+        raw radians), the ignored ones still come back as their mean."""
         seqs = [np.asarray(s) for s in sequences]
         if wrap:
             seqs = [wrap_angles(torch.from_numpy(s.astype(np.float64))).numpy() for s in seqs]
@@ -67,6 +73,8 @@ class Normalizer(nn.Module):
             raise DataError("Normalizer statistics not finite: the training frames hold NaN/inf")
         used = std >= threshold
         std = np.where(used, std, 1.0)
+        if not scale:
+            mean, std = np.where(used, 0.0, mean), np.ones_like(std)
         return cls(torch.from_numpy(mean), torch.from_numpy(std), torch.from_numpy(used), wrap)
 
     @classmethod

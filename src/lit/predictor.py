@@ -90,6 +90,8 @@ class MotionPredictor(L.LightningModule):
         if unknown := set(untrained_actions) - set(self.actions):
             raise ValueError(f"untrained_actions {sorted(unknown)} are not among {self.actions}")
         self.untrained_actions = [a for a in self.actions if a in set(untrained_actions)]
+        if hasattr(net, "objective") and discriminator is not None and lambda_adv > 0:
+            raise ValueError(f"{type(net).__name__} has its own objective: use adversarial=none")
         self.optimizer_factory, self.d_optimizer_factory = optimizer, d_optimizer
         self.lr_decay_every, self.lr_decay_gamma = lr_decay_every, lr_decay_gamma
         self.lambda_2, self.grad_clip_norm = lambda_2, grad_clip_norm
@@ -184,6 +186,9 @@ class MotionPredictor(L.LightningModule):
         self, observed: Tensor, future: Tensor, action: Tensor, eta: float | Tensor
     ) -> tuple[Tensor, Tensor, Tensor]:
         """eq. (9) but its L2 term (a gradient): (loss, reconstruction (7), adversarial or 0)."""
+        if hasattr(self.net, "objective"):  # a network's own loss instead of (7): HisRep's L1
+            loss_recon = self.net.objective(observed, future)
+            return loss_recon, loss_recon.detach(), torch.zeros_like(loss_recon)
         pred = self.net(observed, future.shape[1], action=action, future=future, eta=eta)
         loss_recon = F.mse_loss(pred, future)  # eq. (7), mean over batch x T x D as the reference
         if not self.adversarial:

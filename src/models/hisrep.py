@@ -13,7 +13,7 @@ Specification: shared docs/hisrep.md (facts and shapes of the authors' released 
 
 Longer horizons roll out (§5): the T predicted frames are appended to x and the step repeats, so
 the keys and values grow by T each step and the query is the predicted frames. Training (§6) is
-single-step: `step` returns all L frames, on which the authors' L1 loss is taken.
+single-step: `objective` is the authors' L1 loss on the L frames `step` returns.
 
 Inputs are the K = 48 used exp-map dims in radians, not normalised (§1): the authors train on
 raw angles, and the scale of ε against q·k below was set for them.
@@ -165,6 +165,19 @@ class HisRep(nn.Module):
         # §4: residual over the whole GCN, so with gc7 at zero the step returns P itself.
         y = z + self.gc7(self.blocks(self.gc1(z)))
         return self.D.T @ y[:, :, : self.dct_n].transpose(1, 2)  # inverse DCT: (B, L, K)
+
+    def objective(self, observed: Tensor, future: Tensor) -> Tensor:
+        """The authors' training loss (§6): one step from the N observed frames, L1 over its L
+        frames (the M reconstructed observed ones, then the first T of `future`), summed over
+        the K dims and averaged over batch and frames (the paper averages over dims too: 48x
+        smaller, which Adam all but ignores)."""
+        if future.shape[1] < self.T:
+            raise ValueError(
+                f"the objective needs T={self.T} future frames, got {future.shape[1]}: set "
+                f"data.train_future_len >= {self.T}"
+            )
+        target = torch.cat([observed[:, -self.M :], future[:, : self.T]], dim=1)
+        return (self.step(observed) - target).abs().sum(dim=-1).mean()
 
     def forward(self, observed: Tensor, future_len: int, action=None, future=None, eta=1.0):
         """(B, N, K) -> (B, future_len, K) by ceil(future_len / T) steps (§5). `action` is
