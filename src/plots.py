@@ -65,7 +65,7 @@ def window_rows(
     """(rows, n_observed, description) of evaluation window `index`: `module`'s prediction
     (dropout off), the ground truth and (`baseline`) zero-velocity, each the last `observed_shown`
     observed frames then the future. Titled with `dataset` (default: the data's own name)."""
-    item = {k: v.to(module.device) for k, v in dm.val_dataloader().dataset[index].items()}
+    item = {k: v.to(module.device) for k, v in dm.test_dataloader().dataset[index].items()}
     was_training, T = module.training, len(item["future"])
     module.eval()
     try:

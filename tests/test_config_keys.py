@@ -731,6 +731,7 @@ def test_mao2020_h36m_builds_the_authors_settings(tmp_path, synthetic_data_dir):
     cfg = experiment("mao2020_h36m", tmp_path, synthetic_data_dir)
     assert (cfg.iterations, cfg.val_every, cfg.data.batch_size) == (16 * 4468, 4468, 32)
     assert list(cfg.data.train_subjects) == [1, 6, 7, 8, 9] and not cfg.adversarial.enabled
+    assert (cfg.data.val_subject, cfg.data.val_stride) == (11, 10)  # selected on S11
     data = {k: cfg.data[k] for k in ("zero_root", "normalize", "train_future_len")}
     assert data == {"zero_root": True, "normalize": False, "train_future_len": 10}
     # model=hisrep brings these data settings to any dataset: here the synthetic one.

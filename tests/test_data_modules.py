@@ -157,6 +157,28 @@ def test_mao_et_als_data_settings_root_zeroed_raw_radians_ten_frames_to_train(tm
     assert next(iter(dm.val_dataloader()))["future"].shape == (5, 25, 48)
 
 
+def test_a_validation_subject_is_what_training_validates_on_and_src_eval_is_not(tmp_path):
+    """val_subject=11: training validates on every val_stride-th window of S11's files (all
+    configured actions); the test windows stay the test loader's, and an evaluation (stage
+    validate, as src.eval) validates on them."""
+    dm = SyntheticDataModule(tmp_path, val_subject=11, val_stride=7, **SMALL)
+    dm.prepare_data()
+    dm.setup("fit")
+    val = dm.val_dataloader().dataset
+    lengths = [len(f[::2]) for f in (read_motion_file(tmp_path / "synthetic" / e.relpath, 99)
+                                     for e in h36m_files([11], dm.actions))]  # fmt: skip
+    assert len(val) == sum(len(range(0, n - 75, 7)) for n in lengths) > 0
+    first = read_motion_file(tmp_path / "synthetic" / h36m_files([11], dm.actions)[0].relpath, 99)
+    want = dm.normalizer.normalize(torch.from_numpy(first[::2][:50].copy()))
+    torch.testing.assert_close(val[0]["observed"], want, rtol=0, atol=0)
+    assert len(dm.test_dataloader().dataset) == len(dm.eval_windows) == 24
+    assert dm.test_dataloader().dataset is not val
+
+    evaluating = SyntheticDataModule(tmp_path, val_subject=11, **SMALL)
+    evaluating.setup("validate")
+    assert len(evaluating.val_dataloader().dataset) == len(evaluating.eval_windows) == 24
+
+
 def test_batches_are_pinned_only_for_a_gpu_trainer(synthetic):
     from types import SimpleNamespace
 
@@ -329,6 +351,10 @@ def test_module_unpacks_an_archive(tmp_path, monkeypatch):
         ({"future_len": 101}, r"srnn test windows reserve 150 frames"),
         ({"eval_seed": 2**32}, r"eval_seed must be below 2\*\*32"),
         ({"train_future_len": 0}, r"train_future_len must be an integer >= 1"),
+        ({"val_subject": 1}, r"val_subject=1 is also a training or the test subject"),
+        ({"val_subject": 5}, r"val_subject=5 is also a training or the test subject"),
+        ({"val_subject": 3}, r"data.val_subject: unknown H3.6M subject"),
+        ({"val_subject": 11, "val_stride": 0}, r"val_stride must be an integer >= 1"),
         (
             {"train_future_len": 10, "discriminator_windows": True},
             r"train_future_len=10 with the adversarial regulariser.*adversarial=none",

@@ -94,6 +94,7 @@ class MotionDataModule(L.LightningDataModule):
         eval_windows_per_action: int = 256,
         eval_stride: int = 10,
         eval_seed: int = 1234567890,
+        val_stride: int = 1,
         allow_partial: bool = False,
         num_workers: int = 0,
         seed: int = 0,
@@ -134,6 +135,7 @@ class MotionDataModule(L.LightningDataModule):
         self.eval_seed = _positive("eval_seed", eval_seed, 0)
         if self.eval_seed >= 2**32:  # the protocol's RandomState would refuse it deep in setup()
             raise DataError(f"data.eval_seed must be below 2**32 (4294967296), got {eval_seed}")
+        self.val_stride = _positive("val_stride", val_stride)
         self.allow_partial = bool(allow_partial)
         self.num_workers = _positive("num_workers", num_workers, 0)
         self.seed = _positive("seed", seed, 0)
@@ -164,18 +166,24 @@ class MotionDataModule(L.LightningDataModule):
             )
         return self.normalizer
 
+    def validation_files(self) -> list[FileEntry]:
+        """The files of a validation split (H3.6M's ``val_subject``); none: training validates
+        on the test windows, as the papers (the protocol has no validation split, §8)."""
+        return []
+
     def prepare_data(self) -> None:
         """Unpack the archive if needed and parse every present file into the cache."""
-        train, test = self._locate()
-        present = [e.relpath for e in train + test if e.relpath not in self.missing_files]
+        train, test, val = self._locate()
+        present = [e.relpath for e in train + test + val if e.relpath not in self.missing_files]
         load_sequences(self.data_dir, self.spec, present)
 
-    def _locate(self) -> tuple[list[FileEntry], list[FileEntry]]:
+    def _locate(self) -> tuple[list[FileEntry], list[FileEntry], list[FileEntry]]:
         ensure_dataset(self.spec, self.data_dir, self.archive, self.archive_dir)
         train, test = self.expected_files()
+        val = [] if self._eval_only else self.validation_files()
         if self._eval_only:
             train = []
-        self.missing_files = missing = missing_files(self.data_dir, train + test)
+        self.missing_files = missing = missing_files(self.data_dir, train + test + val)
         if missing and not self.allow_partial:
             spec = self.spec
             raise DataError(
@@ -186,14 +194,14 @@ class MotionDataModule(L.LightningDataModule):
                 "export MOTION_ALLOW_PARTIAL=true (or data.allow_partial=true) to use the files "
                 "that exist and report the actions that cannot be evaluated as absent."
             )
-        return train, test
+        return train, test, val
 
     def setup(self, stage: str | None = None) -> None:
         """Load, normalise and window the data (once; later calls are no-ops)."""
         if self.normalizer is not None:
             return
         self._stage = stage
-        train, test = self._locate()
+        train, test, val = self._locate()
         missing = set(self.missing_files)
         # allow_partial (else _locate raised): what is missing, by kind, and what is done.
         if missing:
@@ -215,7 +223,9 @@ class MotionDataModule(L.LightningDataModule):
             log.debug("missing under %s:\n  %s", self.data_dir, "\n  ".join(self.missing_files))
         train = [e for e in train if e.relpath not in missing]
         present_test = [e for e in test if e.relpath not in missing]
-        raw = load_sequences(self.data_dir, self.spec, [e.relpath for e in train + present_test])
+        val = [e for e in val if e.relpath not in missing]
+        files = [e.relpath for e in train + present_test + val]
+        raw = load_sequences(self.data_dir, self.spec, files)
         if self.zero_root:
             raw = {
                 k: np.concatenate([np.zeros_like(v[:, :6]), v[:, 6:]], axis=1)
@@ -280,7 +290,21 @@ class MotionDataModule(L.LightningDataModule):
         labels = {e.key: self.actions.index(e.action) for e in present_test}
         pairs = [(w.sequence, w.start) for w in self.eval_windows]
         self._eval_dataset = WindowDataset(seqs, labels, self.observed_len, self.future_len, pairs)
+        self._val_dataset = self._validation_split(val, raw, normalizer) if val else None
         self.normalizer = normalizer
+
+    def _validation_split(self, files: list[FileEntry], raw, normalizer) -> WindowDataset:
+        """Every window of the validation files, a start every ``val_stride`` frames."""
+        seqs = [normalizer.normalize(torch.from_numpy(raw[e.relpath][::2].copy())) for e in files]
+        pairs = strided_starts([len(s) for s in seqs], self.window_len, self.val_stride)
+        labels = [self.actions.index(e.action) for e in files]
+        log.info(
+            "validating on %d windows of %s (every %d frames), not on the test windows; "
+            "src.eval evaluates the test windows",
+            len(pairs), ", ".join(sorted({e.relpath.split("/")[-2] for e in files})),
+            self.val_stride,
+        )  # fmt: skip
+        return WindowDataset(seqs, labels, self.observed_len, self.future_len, pairs)
 
     def leave_out(self, absent: dict[str, str]) -> None:
         """Evaluate without the windows of these actions, reported absent with the reason."""
@@ -330,11 +354,16 @@ class MotionDataModule(L.LightningDataModule):
         collate = collate_with_discriminator_windows if draws == 2 else None
         return self._loader(self._train_dataset, batch_sampler=sampler, collate_fn=collate)
 
-    def val_dataloader(self) -> DataLoader:
-        """The test windows: the protocol has no validation split (protocol §8)."""
+    def test_dataloader(self) -> DataLoader:
+        """The test windows (``eval_windows``)."""
         return self._loader(self._eval_dataset, batch_size=self.eval_batch_size, shuffle=False)
 
-    test_dataloader = val_dataloader
+    def val_dataloader(self) -> DataLoader:
+        """In training, the validation split where there is one; else the test windows, as the
+        papers: the protocol has none (§8). src.eval (stage validate) gets the test windows."""
+        if self._stage == "fit" and getattr(self, "_val_dataset", None) is not None:
+            return self._loader(self._val_dataset, batch_size=self.eval_batch_size, shuffle=False)
+        return self.test_dataloader()
 
     def raw_window(self, index: int) -> np.ndarray:
         """Downsampled raw (F columns) frames of ``eval_windows[index]``, observed then future."""

@@ -39,6 +39,7 @@ class H36MDataModule(MotionDataModule):
         data_dir: str | os.PathLike | None = None,
         train_subjects: Iterable[int] = H36M_TRAIN_SUBJECTS,
         test_subject: int = H36M_TEST_SUBJECT,
+        val_subject: int | None = None,
         reference_angle_wrap: bool = False,
         **kwargs,
     ):
@@ -52,6 +53,16 @@ class H36MDataModule(MotionDataModule):
                 f"{self.train_subjects}; the protocol keeps them disjoint (fix: remove it from "
                 "data.train_subjects)"
             )
+        # Mao et al. validate, and select their checkpoint, on S11 (shared docs/hisrep.md §1).
+        self.val_subject = None
+        if val_subject is not None:
+            (self.val_subject,) = parse_subjects([val_subject], "data.val_subject")
+            if self.val_subject in [*self.train_subjects, self.test_subject]:
+                raise DataError(
+                    f"data.val_subject={self.val_subject} is also a training or the test "
+                    f"subject ({self.train_subjects}, {self.test_subject}); remove it from "
+                    "data.train_subjects, or choose another"
+                )
         if self.eval_protocol == "srnn" and self.window_len > SRNN_PREFIX + SRNN_SUFFIX:
             raise DataError(
                 f"the srnn test windows reserve {SRNN_PREFIX + SRNN_SUFFIX} frames, but "
@@ -62,6 +73,9 @@ class H36MDataModule(MotionDataModule):
     def expected_files(self) -> tuple[list[FileEntry], list[FileEntry]]:
         train = h36m_files(self.train_subjects, self.actions)
         return train, h36m_files([self.test_subject], self.actions)
+
+    def validation_files(self) -> list[FileEntry]:
+        return [] if self.val_subject is None else h36m_files([self.val_subject], self.actions)
 
     def protocol_windows(self, lengths: list[int]) -> list[tuple[int, int]]:
         # lengths = [subaction 1, subaction 2]; the index into them is subaction - 1.

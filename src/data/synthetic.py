@@ -87,6 +87,7 @@ class SyntheticDataModule(H36MDataModule):
         # Always: files an earlier run wrote with another raw_frames or synthetic_seed must not
         # silently stand in for the ones these settings describe.
         subjects = [*([] if self._eval_only else self.train_subjects), self.test_subject]
+        subjects += [] if self._eval_only or self.val_subject is None else [self.val_subject]
         write_synthetic_h36m(
             self.data_dir, subjects, self.actions, self.raw_frames, self.synthetic_seed
         )
