@@ -1,7 +1,11 @@
-"""The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2).
+"""The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2),
+and Mao et al. 2020's released result files.
 
 published_results.csv is a byte copy of the shared docs/published_results.csv: a value per row
-as printed (slips included, N/A omitted; "average" rows are the paper's own). references.json:
+as printed (slips included, N/A omitted; "average" rows are the paper's own).
+published_released.csv: values of a model's released result files, table 0 (no paper table):
+HisRep's per-action Euler errors on the 8 SRNN windows (method hisrep) and on 256 (hisrep_256),
+as shared docs/hisrep.md §8 gives them. references.json:
 the slips of the papers (shared docs/published_results.md), the references of Li et al.'s
 ablations (Tables 5 and 6 print averages only, Figure 4 none: null), other papers' numbers of a
 model, what was checked against reference code (shared docs/protocol.md), the ablation claims.
@@ -28,8 +32,11 @@ class ReportingError(ValueError):
 @functools.cache
 def published_frame() -> pd.DataFrame:
     """Every published cell, one row each: paper, table, dataset, method, action, ms, value."""
-    with DATA.joinpath("published_results.csv").open() as fh:
-        return pd.read_csv(fh)
+    frames = []
+    for name in ("published_results.csv", "published_released.csv"):
+        with DATA.joinpath(name).open() as fh:
+            frames.append(pd.read_csv(fh))
+    return pd.concat(frames, ignore_index=True)
 
 
 def find_published(dataset: str, method: str) -> list[tuple[str, int]]:
