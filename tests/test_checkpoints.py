@@ -148,9 +148,8 @@ def test_last_ckpt_holds_the_final_validation_when_checkpoint_every_divides_val_
     assert float(best_state["best_model_score"]) == 1.0
     assert best_state["best_model_path"] == str(best_first)
 
-    second = tmp_path / "second"
-    score, summary = _run(
-        second,
+    score, summary = _run(  # resumed in its folder
+        first,
         synthetic_data_dir,
         "iterations=6",
         "val_every=2",
@@ -158,7 +157,7 @@ def test_last_ckpt_holds_the_final_validation_when_checkpoint_every_divides_val_
         f"ckpt_path={first / 'checkpoints' / LAST}",
     )
     assert score == 1.0 and summary["best_checkpoint"] == str(best_first)
-    assert not list((second / "checkpoints").glob("best-*.ckpt"))
+    assert list((first / "checkpoints").glob("best-*.ckpt")) == [best_first]
 
 
 def test_best_checkpoint_is_lean_and_loads_for_eval_and_inference(tmp_path, synthetic_data_dir):
@@ -228,50 +227,49 @@ def test_last_checkpoint_write_is_atomic_inside_training(
 
 
 def test_best_survives_a_resume(rising_error, tmp_path, synthetic_data_dir):
-    """The resumed run's first validation is worse than the best before the kill: no new best
-    file, the summary names the earlier one, and the earlier folder's files are all kept."""
-    first = tmp_path / "first"
-    _run(first, synthetic_data_dir, "iterations=4", "val_every=2")
-    before = sorted(p.name for p in (first / "checkpoints").iterdir())
-    (best_first,) = (first / "checkpoints").glob("best-*.ckpt")
+    """Resumed in its folder, the run's first validation after the resume is worse than the best
+    before it: no new best file, and the summary names the earlier one."""
+    run = tmp_path / "run"
+    _run(run, synthetic_data_dir, "iterations=4", "val_every=2")
+    (best_first,) = (run / "checkpoints").glob("best-*.ckpt")
 
-    second = tmp_path / "second"
     score, summary = _run(
-        second,
-        synthetic_data_dir,
-        "iterations=8",
-        "val_every=2",
-        f"ckpt_path={first / 'checkpoints' / LAST}",
-    )
-    assert not list((second / "checkpoints").glob("best-*.ckpt"))
+        run, synthetic_data_dir, "iterations=8", "val_every=2",
+        f"ckpt_path={run / 'checkpoints' / LAST}",
+    )  # fmt: skip
+    assert list((run / "checkpoints").glob("best-*.ckpt")) == [best_first]
     assert summary["best_checkpoint"] == str(best_first) and score == 2.0
-    assert sorted(p.name for p in (first / "checkpoints").iterdir()) == before
-    assert _load(second / "checkpoints" / LAST)["global_step"] == 8
+    assert _load(run / "checkpoints" / LAST)["global_step"] == 8
 
 
-def test_a_better_best_after_a_resume_deletes_nothing_of_the_earlier_folder(
+def test_a_better_best_after_a_resume_replaces_the_earlier_one_as_within_a_run(
     falling_error, tmp_path, synthetic_data_dir
 ):
-    """The hard case of the rule above: the resumed run improves on the best before the kill.
-    Lightning then removes the best file it replaces, which lies in the earlier folder."""
-    first = tmp_path / "first"
-    _run(first, synthetic_data_dir, "iterations=4", "val_every=2")
-    before = {p.name: p.read_bytes() for p in (first / "checkpoints").iterdir()}
+    """Resumed in its folder, a better validation replaces the best file as it would have
+    without the resume; resumed from a copy into another folder, the run's own folder keeps
+    every file, and the best is of the folder trained into."""
+    run = tmp_path / "run"
+    _run(run, synthetic_data_dir, "iterations=4", "val_every=2")
+    before = {p.name: p.read_bytes() for p in (run / "checkpoints").iterdir()}
     assert "best-iter000004.ckpt" in before
+    copy = tmp_path / "copy.ckpt"
+    copy.write_bytes(before[LAST])
 
-    second = tmp_path / "second"
     score, summary = _run(
-        second,
-        synthetic_data_dir,
-        "iterations=8",
-        "val_every=2",
-        f"ckpt_path={first / 'checkpoints' / LAST}",
-    )
-    # Within its own folder the new best replaces its predecessor as usual.
-    (best,) = (second / "checkpoints").glob("best-*.ckpt")
+        tmp_path / "elsewhere", synthetic_data_dir, "iterations=8", "val_every=2",
+        f"ckpt_path={copy}",
+    )  # fmt: skip
+    assert {p.name: p.read_bytes() for p in (run / "checkpoints").iterdir()} == before
+    (best,) = (tmp_path / "elsewhere" / "checkpoints").glob("best-*.ckpt")
+    assert best.name == "best-iter000008.ckpt" and summary["best_checkpoint"] == str(best)
+
+    score, summary = _run(
+        run, synthetic_data_dir, "iterations=8", "val_every=2",
+        f"ckpt_path={run / 'checkpoints' / LAST}",
+    )  # fmt: skip
+    (best,) = (run / "checkpoints").glob("best-*.ckpt")
     assert best.name == "best-iter000008.ckpt" and score == 92.0
     assert summary["best_checkpoint"] == str(best)
-    assert {p.name: p.read_bytes() for p in (first / "checkpoints").iterdir()} == before
 
 
 def test_each_validation_logs_one_line_with_the_best_so_far(
@@ -304,9 +302,8 @@ def test_a_best_checkpoint_of_the_earlier_naming_carries_over_a_resume(
     state["best_model_path"] = str(old)
     torch.save(last, first / "checkpoints" / LAST)
 
-    second = tmp_path / "second"
     score, summary = _run(
-        second, synthetic_data_dir, "iterations=4", "val_every=2",
+        first, synthetic_data_dir, "iterations=4", "val_every=2",
         f"ckpt_path={first / 'checkpoints' / LAST}",
     )  # fmt: skip
     assert summary["best_checkpoint"] == str(old) and score == 2.0

@@ -366,7 +366,7 @@ def test_row_8_a_refused_resume_says_which_keys_may_change(tmp_path, synthetic_d
 # ------------------------------------- rows 7 and 11: what a run prints (6: where it resumes)
 FALSE_WARNINGS = (
     "dataloader is not resumable",  # the training sampler resumes exactly
-    "dirpath has changed",  # a checkpoint resumed away from its run's folder, by design
+    "dirpath has changed",  # a resume in its run's folder restores the best as it was
     "exists and is not empty",  # a resume continues in its run's checkpoints/
     "weights_only",  # Lightning's note when the argument is left to its default
     "LeafSpec",  # a deprecation inside Lightning
@@ -421,22 +421,6 @@ def test_row_7_only_the_false_warnings_are_silenced():
     tips = logging.getLogger("lightning.pytorch.utilities.rank_zero")
     assert not tips.filter(logging.makeLogRecord({"msg": "💡 Tip: try installing litlogger"}))
     assert tips.filter(logging.makeLogRecord({"msg": "GPU available: False, used: False"}))
-
-
-def test_row_7_best_checkpoint_carries_over_without_lightnings_dirpath_warning(tmp_path):
-    import warnings
-
-    from src.lit.checkpoints import BestCheckpoint
-
-    before = BestCheckpoint(tmp_path / "a" / "checkpoints")
-    best = str(tmp_path / "a" / "checkpoints" / "best-epoch001.ckpt")
-    state = {**before.state_dict(), "best_model_score": 0.5, "best_model_path": best}
-    after = BestCheckpoint(tmp_path / "b" / "checkpoints")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        after.load_state_dict(state)
-    assert after.best_model_path == state["best_model_path"]
-    assert float(after.best_model_score) == 0.5
 
 
 @pytest.mark.slow

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import signal
 import zipfile
 from pathlib import Path
@@ -128,9 +127,9 @@ class LastCheckpoint(Checkpoint):
 
 
 class BestCheckpoint(ModelCheckpoint):
-    """Lean `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40) of the whole run's
-    lowest validation error; logs a line per validation. In a resume's new folder Lightning
-    would forget the best score: here it carries over, and no earlier file is deleted."""
+    """Lean `best-iterNNNNNN.ckpt` (`best-epochNNN.ckpt` before issue 40) of the run's lowest
+    validation error, resumes in its folder included (Lightning restores its state there); logs
+    a line per validation. A checkpoint resumed in another folder starts a best of its own."""
 
     def __init__(self, dirpath: str | Path, monitor: str = "val/euler_avg"):
         # No "=" in the name (auto_insert_metric_name): it would not parse as ckpt_path=...
@@ -169,19 +168,6 @@ class BestCheckpoint(ModelCheckpoint):
             f"validation at iteration {trainer.global_step}: Euler error {parts[0]} ({best})"
             + "".join(f"; {part}" for part in parts[1:])
         )
-
-    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
-        # Not Lightning's: in a new folder it warns "The dirpath has changed" and drops the score.
-        self.best_model_path = state_dict["best_model_path"]
-        score = state_dict.get("best_model_score")
-        if score is not None and math.isfinite(float(score)):
-            self.best_model_score = self.kth_value = torch.as_tensor(float(score))
-            self.kth_best_model_path = self.best_model_path
-            self.best_k_models = {self.best_model_path: self.best_model_score}
-
-    def _remove_checkpoint(self, trainer: L.Trainer, filepath: str) -> None:
-        if Path(filepath).resolve().parent == Path(self.dirpath).resolve():
-            super()._remove_checkpoint(trainer, filepath)
 
 
 def upgrade(ckpt: dict) -> dict:
