@@ -13,11 +13,12 @@ from pathlib import Path
 import numpy as np
 import torch
 from omegaconf import DictConfig
-from torch import Tensor, nn
+from torch import Tensor
 
 from src.data.base import MotionDataModule, data_sha256, window_ids
 from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
 from src.lit.factory import ConfigError, build_test_data
+from src.lit.parts import data_facts
 from src.lit.predictor import MotionPredictor
 from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import find_published, published_datasets
@@ -217,18 +218,13 @@ class FilePredictor(MotionPredictor):
     are set to their training mean, as unnormalising a network's output does."""
 
     def __init__(self, preds: Predictions, dm: MotionDataModule, dim_rule: str, config: dict):
-        super().__init__(
-            nn.Identity(),
-            dm.normalizer,
-            dataset=dm.dataset_name,
-            actions=dm.actions,
-            frame_ms=dm.frame_ms,
-            future_len=dm.future_len,
-            optimizer=None,
-            dim_rule=dim_rule,
-            run_info={"config": config},
-            untrained_actions=dm.untrained_actions,  # of this copy, as for a baseline
+        super().__init__(  # untrained actions: of this copy, as for a baseline
+            model={"net": {"_target_": "torch.nn.Identity"}},
+            data=data_facts(dm),
+            metrics={"dim_rule": dim_rule},
+            normalizer=dm.normalizer,
         )
+        self.run_info = {"config": config}
         row_of = {name: row for row, name in enumerate(preds.ids)}
         rows = [row_of[name] for name in window_ids(dm.eval_windows)]  # row i: eval window i
         self.register_buffer("prediction", torch.from_numpy(preds.prediction[rows]), False)

@@ -3,22 +3,18 @@ points and MotionForecaster build through these functions alone."""
 
 from __future__ import annotations
 
-import inspect
 import subprocess
 from pathlib import Path
-from types import SimpleNamespace
-from typing import Any
 
 import hydra
 import torch
 from hydra.errors import InstantiationException
-from lightning.fabric.utilities.exceptions import MisconfigurationException
 from omegaconf import DictConfig, OmegaConf
 
-from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_compatible, read_checkpoint
 from src.lit.config import ConfigError
+from src.lit.parts import data_facts, instantiate, plain
 from src.lit.predictor import MotionPredictor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -34,21 +30,8 @@ def git_commit() -> str:
         return "unknown"
 
 
-def _instantiate(node, **kwargs):
-    """hydra.utils.instantiate; a constructor's refusal is one line, not Hydra's traceback."""
-    try:
-        return hydra.utils.instantiate(node, **kwargs)
-    except InstantiationException as err:
-        cause = err.__cause__
-        if isinstance(cause, (DataError, ConfigError)):
-            raise cause from None
-        if isinstance(cause, (ValueError, MisconfigurationException)):
-            raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
-        raise
-
-
 # The Trainer of a trainer config (+ kwargs); a setting Lightning refuses is a ConfigError.
-build_trainer = _instantiate
+build_trainer = instantiate
 
 
 def build_parts(cfg: DictConfig) -> None:
@@ -56,112 +39,81 @@ def build_parts(cfg: DictConfig) -> None:
     their constructors' refusals come before the run folder is made and any data is read."""
     build_datamodule(cfg.data)
     if cfg.get("sampling"):
-        _instantiate(cfg.sampling)
+        instantiate(cfg.sampling)
     for key in ("model.optimizer", "adversarial.optimizer"):  # lr > 0 is checked for both
         node = OmegaConf.select(cfg, key)
         if node is not None:
             try:
-                _instantiate(node)([torch.nn.Parameter(torch.zeros(1))])
+                instantiate(node)([torch.nn.Parameter(torch.zeros(1))])
             except ValueError as err:  # torch.optim's refusal of an argument
                 raise ConfigError(f"{key}: {err}") from None
 
 
 def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None):
     kwargs = {k: v for k, v in data_cfg.items() if k != "name"}
-    dm = _instantiate(kwargs, _convert_="all")
+    dm = instantiate(kwargs, _convert_="all")
     if normalizer is not None:
         dm.set_normalizer(normalizer)
     return dm
 
 
-def _instantiate_with_data(node: DictConfig, dm, **extra):
-    """A network, with what only the data knows (padding: protocol §6.7)."""
-    kwargs: dict[str, Any] = {"pose_dim": dm.pose_dim, "num_actions": dm.num_actions, **extra}
-    if "normalizer" in inspect.signature(hydra.utils.get_class(node._target_)).parameters:
-        kwargs["normalizer"] = dm.normalizer
-    if node.get("padding") == "auto":
-        kwargs["padding"] = dm.conv_padding
-    return _instantiate(node, **kwargs, _convert_="all")
+SECTIONS = ("model", "sampling", "adversarial", "metrics", "compile")
 
 
 def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPredictor:
-    """The LightningModule of `cfg` on `dm`, a set-up datamodule or load_trained's stand-in."""
-    net = _instantiate_with_data(cfg.model.net, dm)
-    trainable = any(p.requires_grad for p in net.parameters())
-    model, adv, compile_ = cfg.model, cfg.get("adversarial") or {}, cfg.get("compile") or {}
-    settings = ("lr_decay_every", "lr_decay_gamma", "lambda_2", "grad_clip_norm")
-    kwargs = {k: model[k] for k in settings if k in model}
-    if adv.get("enabled") and trainable:
-        kwargs |= {
-            "discriminator": _instantiate_with_data(
-                adv.discriminator, dm, seq_len=dm.observed_len + dm.future_len
-            ),
-            "d_optimizer": hydra.utils.instantiate(adv.optimizer),
-            "lambda_adv": adv.get("lambda_adv", 0.0),
-            "lambda_2_d": adv.get("lambda_2", 0.0),
-            "reference_fake_slot": adv.get("reference_fake_slot", False),
-        }
-    return MotionPredictor(
-        net,
-        dm.normalizer,
-        dataset=dm.dataset_name,
-        actions=dm.actions,
-        frame_ms=dm.frame_ms,
-        future_len=dm.future_len,
-        optimizer=hydra.utils.instantiate(model.optimizer) if trainable else None,
-        eta_schedule=_instantiate(cfg.sampling) if cfg.get("sampling") else None,
-        dim_rule=cfg.metrics.dim_rule,
-        run_info=run_info,
-        compile=compile_.get("enabled", False),
-        compile_mode=compile_.get("mode", "reduce-overhead"),
-        untrained_actions=dm.untrained_actions,
-        **kwargs,
+    """The LightningModule of `cfg` on `dm`, a set-up datamodule."""
+    sections = {k: cfg.get(k) for k in SECTIONS}
+    if cfg.model.get("optimizer") is None:  # a baseline: the regulariser's lr is the model's
+        sections["adversarial"] = None
+    module = MotionPredictor(
+        **{k: plain(v) for k, v in sections.items()}, data=data_facts(dm), normalizer=dm.normalizer
     )
+    module.run_info = run_info or {}
+    return module
+
+
+def legacy_hyperparameters(ckpt: dict) -> dict:
+    """The hyper-parameters of a checkpoint written before the module saved its own: from the
+    sections and actions it stored, the class of its data config and its normaliser."""
+    motion, state = ckpt["motion"], ckpt["state_dict"]
+    saved = motion["config"]
+    data = hydra.utils.get_class(saved["data"]["_target_"])
+    facts = {
+        "dataset": data.dataset_name,
+        "actions": list(motion["actions"]),
+        "untrained_actions": motion.get("untrained_actions", []),
+        **{k: saved["data"][k] for k in ("observed_len", "future_len")},
+        "frame_ms": data.frame_ms,
+        "conv_padding": data.conv_padding,
+        "used": torch.nonzero(state["normalizer.used"]).flatten().tolist(),
+        "num_features": state["normalizer.used"].numel(),
+    }
+    return {**{k: saved.get(k) for k in SECTIONS}, "data": facts}
 
 
 def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredictor:
-    """The one way to load a trained model, from the checkpoint alone (no data file is read): its
-    MotionPredictor in eval mode, saved config in `.run_info["config"]`. `cfg`, an evaluation
-    config: refuse a checkpoint of another model= / data=; take its `metrics.dim_rule`."""
+    """The one way to load a trained model: `MotionPredictor.load_from_checkpoint`, after the
+    checkpoint was read with clear errors (no data file is read); in eval mode, the saved run
+    config in `.run_info["config"]`. `cfg`, an evaluation config: refuse a checkpoint of
+    another model= / data=; take its `metrics.dim_rule`."""
     ckpt = read_checkpoint(path)
     if cfg is not None:
         check_compatible(ckpt, cfg, path)
-    motion, state = ckpt["motion"], ckpt["state_dict"]
-    saved = OmegaConf.create(motion["config"])
-    if "normalizer.mean" not in state:
+    if "normalizer.mean" not in ckpt["state_dict"]:
         raise CheckpointError(f"{path} holds no normaliser (normalizer.* buffers)")
-    normalizer = Normalizer.empty(state["normalizer.mean"].numel())
-    normalizer.load_state_dict(
-        {k.removeprefix("normalizer."): v for k, v in state.items() if k.startswith("normalizer.")}
-    )
-    # What build_module reads of a set-up datamodule: its class's attributes, the saved lengths.
-    data, actions = hydra.utils.get_class(saved.data._target_), list(motion["actions"])
-    facts = SimpleNamespace(
-        normalizer=normalizer,
-        pose_dim=normalizer.pose_dim,
-        actions=actions,
-        num_actions=len(actions),
-        # Of the data copy it was trained on (older checkpoints lack it: none known).
-        untrained_actions=motion.get("untrained_actions", []),
-        **{k: getattr(data, k) for k in ("dataset_name", "conv_padding", "frame_ms")},
-        **{k: saved.data[k] for k in ("observed_len", "future_len")},
-    )
+    hparams = ckpt.get("hyper_parameters") or legacy_hyperparameters(ckpt)
     if cfg is not None and cfg.get("metrics") is not None:
-        saved.metrics = cfg.metrics
+        hparams = {**hparams, "metrics": plain(cfg.metrics)}
     try:
-        module = build_module(saved, facts, run_info=motion)
-    except (InstantiationException, TypeError) as err:
-        raise CheckpointError(
-            f"cannot rebuild the model of {path} from its saved config: {err.__cause__ or err}. "
-            "It was written by an incompatible version."
-        ) from err
-    missing, unexpected = module.load_state_dict(state, strict=False)
-    missing = [k for k in missing if not k.startswith(("euler.", "mpjpe."))]
-    if missing or unexpected:
-        raise CheckpointError(
-            f"checkpoint {path} does not fit the rebuilt model: missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]}. It was written by an incompatible version."
+        module = MotionPredictor.load_from_checkpoint(
+            path, map_location="cpu", weights_only=True, **hparams
         )
+    except (InstantiationException, TypeError, KeyError, RuntimeError) as err:
+        raise CheckpointError(
+            f"cannot rebuild the model of {path} from its saved config: "
+            f"{' '.join(str(err.__cause__ or err).split())[:300]}. It was written by an "
+            "incompatible version."
+        ) from err
     return module.eval()
 
 

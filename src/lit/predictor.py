@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +20,7 @@ from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import upgrade
+from src.lit.parts import instantiate, network, normalizer_of, plain
 from src.metrics.averages import averages
 from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
 from src.metrics.kinematics import Skeleton, moving_joints
@@ -53,63 +53,69 @@ def add_l2_gradient_(module: nn.Module, weight: float) -> None:
 
 
 class MotionPredictor(L.LightningModule):
+    """Built from its config sections (model, sampling, adversarial, metrics, compile) and the
+    facts of its data (`parts.data_facts`), which are its hyper-parameters: so
+    `MotionPredictor.load_from_checkpoint(path)` rebuilds it without any data file.
+    `normalizer`: the datamodule's; else one of the facts' shape, filled by the weights."""
+
     def __init__(
         self,
-        net: nn.Module,
-        normalizer: Normalizer,
-        *,
-        dataset: str,
-        actions: list[str],
-        frame_ms: float,
-        future_len: int,
-        optimizer: partial,
-        lr_decay_every: int = 10000,
-        lr_decay_gamma: float = 1.0,
-        lambda_2: float = 0.0,
-        grad_clip_norm: float | None = None,
-        eta_schedule=None,
-        discriminator: nn.Module | None = None,
-        d_optimizer: partial | None = None,
-        lambda_adv: float = 0.0,
-        lambda_2_d: float = 0.0,
-        reference_fake_slot: bool = False,
-        dim_rule: str = "future",
-        run_info: dict[str, Any] | None = None,
-        compile: bool | str = False,
-        compile_mode: str = "reduce-overhead",
-        untrained_actions: list[str] = (),
+        model: dict,
+        data: dict,
+        sampling: dict | None = None,
+        adversarial: dict | None = None,
+        metrics: dict | None = None,
+        compile: dict | None = None,
+        normalizer: Normalizer | None = None,
     ):
         super().__init__()
-        if compile not in (True, False, "auto"):
-            raise ValueError(f"compile must be true, false or auto (on CUDA), got {compile!r}")
+        model, data, sampling, adversarial = map(plain, (model, data, sampling, adversarial))
+        metrics, compile = plain(metrics) or {}, plain(compile) or {}
+        self.save_hyperparameters(
+            {"model": model, "data": data, "sampling": sampling, "adversarial": adversarial,
+             "metrics": metrics, "compile": compile}, logger=False,
+        )  # fmt: skip
         self.automatic_optimization = False
-        self.net, self.normalizer, self.discriminator = net, normalizer, discriminator
-        self.dataset, self.actions, self.frame_ms = dataset, list(actions), frame_ms
-        self.future_len = future_len
-        # Actions without training files in the data copy trained on: not in average_trained.
-        if unknown := set(untrained_actions) - set(self.actions):
-            raise ValueError(f"untrained_actions {sorted(unknown)} are not among {self.actions}")
-        self.untrained_actions = [a for a in self.actions if a in set(untrained_actions)]
-        if hasattr(net, "objective") and discriminator is not None and lambda_adv > 0:
+        self.normalizer = normalizer = normalizer_of(data) if normalizer is None else normalizer
+        self.net = net = network(model["net"], data, normalizer)
+        adv = adversarial if adversarial and adversarial.get("enabled") and self.trainable else {}
+        self.discriminator = (
+            network(adv["discriminator"], data, normalizer,
+                    seq_len=data["observed_len"] + data["future_len"])
+            if adv else None
+        )  # fmt: skip
+        self.lambda_adv, self.lambda_2_d = adv.get("lambda_adv", 0.0), adv.get("lambda_2", 0.0)
+        self.reference_fake_slot = adv.get("reference_fake_slot", False)
+        if hasattr(net, "objective") and self.adversarial:
             raise ValueError(f"{type(net).__name__} has its own objective: use adversarial=none")
-        self.optimizer_factory, self.d_optimizer_factory = optimizer, d_optimizer
-        self.lr_decay_every, self.lr_decay_gamma = lr_decay_every, lr_decay_gamma
-        self.lambda_2, self.grad_clip_norm = lambda_2, grad_clip_norm
-        self.lambda_adv, self.lambda_2_d = lambda_adv, lambda_2_d
-        self.eta_schedule, self.reference_fake_slot = eta_schedule, reference_fake_slot
-        self.run_info = run_info or {}
+        self.optimizer_factory = instantiate(model["optimizer"]) if self.trainable else None
+        self.d_optimizer_factory = instantiate(adv["optimizer"]) if adv else None
+        self.lr_decay_every = model.get("lr_decay_every", 10000)
+        self.lr_decay_gamma = model.get("lr_decay_gamma", 1.0)
+        self.lambda_2, self.grad_clip_norm = model.get("lambda_2", 0.0), model.get("grad_clip_norm")
+        self.eta_schedule = instantiate(sampling) if sampling else None
+        self.dataset, self.actions = data["dataset"], data["actions"]
+        self.frame_ms, self.future_len = data["frame_ms"], data["future_len"]
+        # Actions without training files in the data copy trained on: not in average_trained.
+        untrained = set(data.get("untrained_actions", []))
+        if unknown := untrained - set(self.actions):
+            raise ValueError(f"untrained_actions {sorted(unknown)} are not among {self.actions}")
+        self.untrained_actions = [a for a in self.actions if a in untrained]
+        self.run_info: dict[str, Any] = {}  # commit, config, missing files: in checkpoints
         # torch.compile the two objectives (True; "auto": on a CUDA device only).
-        self.compile_step, self.compile_mode = compile, compile_mode
+        self.compile_step = compile.get("enabled", False)
+        self.compile_mode = compile.get("mode", "reduce-overhead")
+        if self.compile_step not in (True, False, "auto"):
+            raise ValueError(f"compile must be true, false or auto (on CUDA), got {compile!r}")
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
 
-        skeleton = Skeleton.load(dataset)
-        self.euler = EulerAngleError(len(self.actions), future_len, dim_rule=dim_rule)
-        self.mpjpe = MPJPE(
-            skeleton, moving_joints(skeleton, normalizer.used.cpu()), len(self.actions), future_len
-        )
-        self.horizons = horizon_frame_indices(frame_ms, future_len)
+        skeleton = Skeleton.load(self.dataset)
+        n, T = len(self.actions), self.future_len
+        self.euler = EulerAngleError(n, T, dim_rule=metrics.get("dim_rule", "future"))
+        self.mpjpe = MPJPE(skeleton, moving_joints(skeleton, normalizer.used.cpu()), n, T)
+        self.horizons = horizon_frame_indices(self.frame_ms, T)
         self.last_results: dict[str, Tensor] = {}
         self.last_averages: dict[str, tuple[list[str], str]] = {}  # averages() of the last one
 
@@ -375,7 +381,7 @@ class MotionPredictor(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         self._check_finite_weights()
-        # What rebuilds the model without its data (factory.load_trained): config, actions.
+        # The run's config, commit and data: what src.eval and src.report read of a model.
         checkpoint["motion"] = {
             **self.run_info,
             "actions": self.actions,
@@ -388,6 +394,10 @@ class MotionPredictor(L.LightningModule):
 
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         upgrade(checkpoint)  # before Lightning loads the state dict
+        if self._trainer is None:  # load_from_checkpoint: for use, not a resume
+            self.run_info = checkpoint["motion"]
+            return
+        # The random state (dropout masks): a resumed run continues as it would have.
         rng = checkpoint.get("rng", {})
         if "torch" in rng:
             torch.set_rng_state(rng["torch"])

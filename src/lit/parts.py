@@ -1,0 +1,73 @@
+"""What a MotionPredictor is built from: its config sections (plain containers, the
+checkpoint's hyper-parameters) and the facts of its data (`data_facts`), into networks,
+optimiser factories and the eta schedule; a constructor's refusal is one line."""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any
+
+import hydra
+import torch
+from hydra.errors import InstantiationException
+from lightning.fabric.utilities.exceptions import MisconfigurationException
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from src.data.errors import DataError
+from src.data.normalization import Normalizer
+from src.lit.config import ConfigError
+
+
+def instantiate(node, **kwargs):
+    """hydra.utils.instantiate; a constructor's refusal is one line, not Hydra's traceback."""
+    try:
+        return hydra.utils.instantiate(node, **kwargs)
+    except InstantiationException as err:
+        cause = err.__cause__
+        if isinstance(cause, (DataError, ConfigError)):
+            raise cause from None
+        if isinstance(cause, (ValueError, MisconfigurationException)):
+            raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
+        raise
+
+
+def plain(node) -> Any:
+    """A config node as plain containers (what a checkpoint can hold and load weights-only)."""
+    if isinstance(node, (DictConfig, ListConfig)):
+        return OmegaConf.to_container(node, resolve=True)
+    return node
+
+
+def data_facts(dm) -> dict[str, Any]:
+    """What a model needs of its set-up datamodule, kept with it so that it is rebuilt without
+    any data file: dataset, actions, lengths, padding (protocol §6.7), the used columns."""
+    return {
+        "dataset": dm.dataset_name,
+        "actions": list(dm.actions),
+        "untrained_actions": list(dm.untrained_actions),
+        "observed_len": dm.observed_len,
+        "future_len": dm.future_len,
+        "frame_ms": dm.frame_ms,
+        "conv_padding": dm.conv_padding,
+        "used": dm.normalizer.dim_used.tolist(),
+        "num_features": dm.normalizer.num_features,
+    }
+
+
+def normalizer_of(facts: dict[str, Any]) -> Normalizer:
+    """A Normalizer of the facts' shape and used columns; its statistics come with the weights."""
+    used = torch.zeros(facts["num_features"], dtype=torch.bool)
+    used[facts["used"]] = True
+    return Normalizer(torch.zeros(used.numel()), torch.ones(used.numel()), used)
+
+
+def network(node, facts: dict[str, Any], normalizer: Normalizer, **extra):
+    """A network of the config node, with what only the data knows."""
+    kwargs: dict[str, Any] = {
+        "pose_dim": len(facts["used"]), "num_actions": len(facts["actions"]), **extra
+    }  # fmt: skip
+    if "normalizer" in inspect.signature(hydra.utils.get_class(node["_target_"])).parameters:
+        kwargs["normalizer"] = normalizer
+    if node.get("padding") == "auto":
+        kwargs["padding"] = facts["conv_padding"]
+    return instantiate(node, **kwargs, _convert_="all")
