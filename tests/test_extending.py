@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from src.models.residual_mlp import ResidualMLP
-from tests.conftest import compose_config, run_module
+from tests.conftest import ROOT, compose_config, run_module
 
 
 def test_untrained_residual_mlp_is_zero_velocity():
@@ -125,3 +125,46 @@ def test_the_example_model_in_a_sweep_and_the_report(tmp_path, synthetic_data_di
     ]
     # Two experiments (one per hidden size), each under its short label.
     assert labels == ["residual_mlp_synthetic, hidden=16", "residual_mlp_synthetic, hidden=32"]
+
+
+def _plain_trainer_script() -> str:
+    text = (ROOT / "docs" / "extending.md").read_text()
+    block = text.split("<!-- plain-trainer:start -->")[1].split("<!-- plain-trainer:end -->")[0]
+    return block.split("```python\n")[1].split("```")[0]
+
+
+@pytest.mark.slow
+def test_the_plain_trainer_script_trains_as_src_train(tmp_path, synthetic_data_dir):
+    """docs/extending.md's script (at most 20 lines: compose, instantiate, a plain L.Trainer)
+    gives src.train's losses at every one of the 40 iterations, at the same seed (one thread)."""
+    import csv
+    import os
+    import subprocess
+    import sys
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    script = _plain_trainer_script()
+    assert len(script.strip().splitlines()) <= 20
+    env = {**os.environ, "MOTION_DATA_DIR": str(synthetic_data_dir), "OMP_NUM_THREADS": "1",
+           "PYTHONPATH": str(ROOT)}  # fmt: skip
+    plain = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env,
+                           capture_output=True, text=True, timeout=900)  # fmt: skip
+    assert plain.returncode == 0, plain.stderr[-3000:]
+    train = [sys.executable, "-m", "src.train", "data=synthetic", "iterations=40", "val_every=20",
+             "trainer.log_every_n_steps=1", "trainer.enable_progress_bar=false",
+             f"paths.log_dir={tmp_path / 'logs'}"]  # fmt: skip
+    proc = subprocess.run(train, cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+    (metrics,) = (tmp_path / "outputs" / "plain").rglob("metrics.csv")
+    ours = {}
+    for row in csv.DictReader(metrics.open()):
+        if row.get("train/loss_g"):
+            ours[int(row["step"])] = float(row["train/loss_g"])
+    (events,) = {p.parent for p in (tmp_path / "logs").rglob("events.out.tfevents.*")}
+    theirs = {e.step: e.value for e in EventAccumulator(str(events)).Reload().Scalars(
+        "train/loss_g")}  # fmt: skip
+    assert sorted(ours) == sorted(theirs) == list(range(40))
+    for step, value in theirs.items():
+        assert ours[step] == pytest.approx(value, rel=1e-6, abs=1e-7), step

@@ -98,8 +98,10 @@ class MotionDataModule(L.LightningDataModule):
         allow_partial: bool = False,
         num_workers: int = 0,
         seed: int = 0,
+        name: str | None = None,
     ):
         super().__init__()
+        self.name = name or self.dataset_name  # the data config's (synthetic is in H3.6M's format)
         self.data_dir = resolve_data_dir(data_dir)
         self.archive, self.archive_dir = archive, archive_dir
         self.num_features = self.spec.n_columns

@@ -50,8 +50,7 @@ def build_parts(cfg: DictConfig) -> None:
 
 
 def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None):
-    kwargs = {k: v for k, v in data_cfg.items() if k != "name"}
-    dm = instantiate(kwargs, _convert_="all")
+    dm = instantiate(data_cfg, _convert_="all")
     if normalizer is not None:
         dm.set_normalizer(normalizer)
     return dm
