@@ -47,8 +47,6 @@ from src.data.normalization import Normalizer  # noqa: E402
 from src.inference import compile_for_prediction  # noqa: E402
 from src.lit.predictor import MotionPredictor  # noqa: E402
 from src.models.conv_s2s import ConvSeq2Seq  # noqa: E402
-from src.models.discriminator import Discriminator  # noqa: E402
-from src.models.gru_s2s import GRUSeq2Seq  # noqa: E402
 
 F_RAW, D, A, OBS, FUT = 99, 54, 15, 50, 25
 VAL_WINDOWS = 8 * A  # protocol: 8 test windows per action
@@ -82,31 +80,29 @@ def conv_net(**kw) -> ConvSeq2Seq:
 def module(kind: str, device: torch.device) -> MotionPredictor:
     """A MotionPredictor as the configs build it (li2018 / martinez2017 hyper-parameters)."""
     normalizer = Normalizer(torch.zeros(F_RAW), torch.ones(F_RAW), torch.arange(F_RAW) < D)
-    disc = None
+    adam = {"_target_": "torch.optim.Adam", "_partial_": True, "lr": 5e-5, "fused": True}
     if kind.startswith("conv"):
-        net = conv_net()
-        opt, lambda_2, clip = partial(torch.optim.Adam, lr=5e-5, fused=True), 1e-3, None
-        if kind == "conv_adv":
-            disc = Discriminator(D, A, seq_len=OBS + FUT)
+        net, opt, lambda_2, clip = "src.models.conv_s2s.ConvSeq2Seq", adam, 1e-3, None
     else:
-        net = GRUSeq2Seq(D, A)
-        opt, lambda_2, clip = partial(torch.optim.SGD, lr=5e-3), 0.0, 5.0
+        net, lambda_2, clip = "src.models.gru_s2s.GRUSeq2Seq", 0.0, 5.0
+        opt = {"_target_": "torch.optim.SGD", "_partial_": True, "lr": 5e-3}
+    adversarial = {
+        "enabled": True,
+        "discriminator": {"_target_": "src.models.discriminator.Discriminator"},
+        "optimizer": adam,
+        "lambda_adv": 0.01,
+        "lambda_2": 1e-3,
+    }
     m = MotionPredictor(
-        net=net,
+        model={"net": {"_target_": net}, "optimizer": opt, "lambda_2": lambda_2,
+               "grad_clip_norm": clip, "lr_decay_every": 10000, "lr_decay_gamma": 1.0},
+        data={"dataset": "h36m", "actions": [f"a{i}" for i in range(A)], "observed_len": OBS,
+              "future_len": FUT, "frame_ms": 40.0, "conv_padding": "same",
+              "used": list(range(D)), "num_features": F_RAW},
+        sampling={"_target_": "src.lit.eta_schedule.Constant", "eta": 0.9},  # eq. (10) mixing
+        adversarial=adversarial if kind == "conv_adv" else None,
         normalizer=normalizer,
-        dataset="h36m",
-        actions=[f"a{i}" for i in range(A)],
-        frame_ms=40.0,
-        future_len=FUT,
-        optimizer=opt,
-        lambda_2=lambda_2,
-        grad_clip_norm=clip,
-        eta_schedule=lambda it: 0.9,  # eq. (10) mixing on
-        discriminator=disc,
-        d_optimizer=partial(torch.optim.Adam, lr=5e-5, fused=True) if disc is not None else None,
-        lambda_adv=0.01 if disc is not None else 0.0,
-        lambda_2_d=1e-3,
-    ).to(device)
+    ).to(device)  # fmt: skip
     # Bind the Lightning hooks training_step calls to plain PyTorch: no Trainer needed.
     opts, scheds = m.configure_optimizers()
     m.optimizers = lambda: opts if len(opts) > 1 else opts[0]  # as Lightning returns them
