@@ -10,6 +10,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import hydra
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Checkpoint, ModelCheckpoint
@@ -171,7 +172,8 @@ class BestCheckpoint(ModelCheckpoint):
 
 
 def upgrade(ckpt: dict) -> dict:
-    """A checkpoint of commit a7603dd or before, in today's form: the module counted its
+    """A checkpoint of an earlier commit in today's form: hyper-parameters where it has none
+    (before f50b604); and of commit a7603dd or before: the module counted its
     iterations in an `iteration` buffer (now the Trainer's global_step; before issue 40 that
     step counted 2 per adversarial iteration, so the buffer is the count) and the data config
     had a `steps_per_epoch` (an epoch was `val_every` iterations)."""
@@ -180,7 +182,29 @@ def upgrade(ckpt: dict) -> dict:
         ckpt["global_step"] = int(iteration)
     data = ckpt.get("motion", {}).get("config", {}).get("data") or {}
     data.pop("steps_per_epoch", None)
+    if "hyper_parameters" not in ckpt and "normalizer.used" in ckpt.get("state_dict", {}):
+        ckpt["hyper_parameters"] = _hyperparameters_of(ckpt)
     return ckpt
+
+
+def _hyperparameters_of(ckpt: dict) -> dict:
+    """MotionPredictor's hyper-parameters for a checkpoint written before the module saved its
+    own: from the sections and actions it stored, its data config's class and its normaliser."""
+    motion, used = ckpt["motion"], ckpt["state_dict"]["normalizer.used"]
+    saved = motion["config"]
+    data = hydra.utils.get_class(saved["data"]["_target_"])
+    facts = {
+        "dataset": data.dataset_name,
+        "actions": list(motion["actions"]),
+        "untrained_actions": motion.get("untrained_actions", []),
+        **{k: saved["data"][k] for k in ("observed_len", "future_len")},
+        "frame_ms": data.frame_ms,
+        "conv_padding": data.conv_padding,
+        "used": torch.nonzero(used).flatten().tolist(),
+        "num_features": used.numel(),
+    }
+    sections = ("model", "sampling", "adversarial", "metrics", "compile")
+    return {**{k: saved.get(k) for k in sections}, "data": facts}
 
 
 def read_checkpoint(path: str | Path) -> dict:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
-import hydra
 import torch
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
@@ -71,25 +70,6 @@ def build_module(cfg: DictConfig, dm, run_info: dict | None = None) -> MotionPre
     return module
 
 
-def legacy_hyperparameters(ckpt: dict) -> dict:
-    """The hyper-parameters of a checkpoint written before the module saved its own: from the
-    sections and actions it stored, the class of its data config and its normaliser."""
-    motion, state = ckpt["motion"], ckpt["state_dict"]
-    saved = motion["config"]
-    data = hydra.utils.get_class(saved["data"]["_target_"])
-    facts = {
-        "dataset": data.dataset_name,
-        "actions": list(motion["actions"]),
-        "untrained_actions": motion.get("untrained_actions", []),
-        **{k: saved["data"][k] for k in ("observed_len", "future_len")},
-        "frame_ms": data.frame_ms,
-        "conv_padding": data.conv_padding,
-        "used": torch.nonzero(state["normalizer.used"]).flatten().tolist(),
-        "num_features": state["normalizer.used"].numel(),
-    }
-    return {**{k: saved.get(k) for k in SECTIONS}, "data": facts}
-
-
 def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredictor:
     """The one way to load a trained model: `MotionPredictor.load_from_checkpoint`, after the
     checkpoint was read with clear errors (no data file is read); in eval mode, the saved run
@@ -100,7 +80,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
         check_compatible(ckpt, cfg, path)
     if "normalizer.mean" not in ckpt["state_dict"]:
         raise CheckpointError(f"{path} holds no normaliser (normalizer.* buffers)")
-    hparams = ckpt.get("hyper_parameters") or legacy_hyperparameters(ckpt)
+    hparams = ckpt["hyper_parameters"]  # older checkpoints': from read_checkpoint's upgrade
     if cfg is not None and cfg.get("metrics") is not None:
         hparams = {**hparams, "metrics": plain(cfg.metrics)}
     try:
