@@ -11,7 +11,7 @@ import numpy as np
 from omegaconf import DictConfig
 
 from src.cli import hydra_entry
-from src.data.base import window_arrays
+from src.data.export import window_arrays
 from src.data.files import atomic_write
 from src.lit.config import check
 from src.lit.factory import ConfigError, build_test_data

@@ -15,7 +15,8 @@ import torch
 from omegaconf import DictConfig
 from torch import Tensor
 
-from src.data.base import MotionDataModule, data_sha256, window_ids
+from src.data.base import MotionDataModule, window_ids
+from src.data.export import data_sha256
 from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
 from src.lit.factory import ConfigError, build_test_data
 from src.lit.parts import data_facts

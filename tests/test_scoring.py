@@ -10,7 +10,7 @@ import io
 import numpy as np
 import pytest
 
-from src.data.base import windows_sha256
+from src.data.export import windows_sha256
 from src.data.synthetic import synthetic_motion
 from src.data.windows import srnn_h36m_starts
 from src.lit.factory import ConfigError
