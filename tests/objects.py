@@ -44,6 +44,14 @@ def one_thread():
 
 
 # ------------------------------------------------------------------------------ configs
+# The smallest conv seq2seq with its adversarial regulariser (model=conv_s2s defaults to it):
+# a few hundred weights, so a test trains it in seconds.
+TINY_CONV = ["model=conv_s2s", "model.net.nf=2", "model.net.d_z=8", "data.batch_size=4",
+             "adversarial=li2018", "adversarial.discriminator.nf=2",
+             "adversarial.discriminator.d_z=8", "adversarial.discriminator.d_fc=4"]  # fmt: skip
+QUIET = ["trainer=cpu", "trainer.enable_progress_bar=false", "media_every=0"]
+
+
 def compose(overrides: list[str], out_dir: Path, data_dir: Path, name: str = "train") -> DictConfig:
     """The config `python -m src.<name> overrides...` runs with (run folder `out_dir`)."""
     return compose_config(name, list(overrides), out_dir, data_dir)

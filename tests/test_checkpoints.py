@@ -21,20 +21,9 @@ from src.lit.checkpoints import (
 from src.lit.compose import compose_config
 from src.lit.predictor import MotionPredictor
 from src.train import train
+from tests.objects import QUIET, TINY_CONV
 
-TINY = [
-    "data=synthetic",
-    "trainer=cpu",
-    "trainer.enable_progress_bar=false",
-    "model=conv_s2s",
-    "model.net.nf=2",
-    "model.net.d_z=8",
-    "adversarial.discriminator.nf=2",
-    "adversarial.discriminator.d_z=8",
-    "adversarial.discriminator.d_fc=8",
-    "data.batch_size=4",
-    "media_every=0",
-]
+TINY = ["data=synthetic", *QUIET, *TINY_CONV]
 
 
 @pytest.fixture(autouse=True)

@@ -18,6 +18,7 @@ import torch
 from src.lit.factory import build_datamodule, build_module
 from src.lit.predictor import MotionPredictor
 from tests import objects
+from tests.objects import TINY_CONV
 
 OBSERVED, FUTURE = 50, 25
 TRUE_FRAMES = list(range(OBSERVED + FUTURE))
@@ -85,13 +86,7 @@ class _OneBatch(torch.utils.data.Dataset):
 def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, reference):
     """Through training_step: the D step's real and fake samples and the G step's fake one."""
     cfg = train_cfg(
-        "model=conv_s2s",
-        "model.net.nf=2",
-        "model.net.d_z=8",
-        "adversarial=li2018",
-        "adversarial.discriminator.nf=2",
-        "adversarial.discriminator.d_z=8",
-        "adversarial.discriminator.d_fc=4",
+        *TINY_CONV,
         f"adversarial.reference_fake_slot={str(reference).lower()}",
     )
     L.seed_everything(0)

@@ -19,20 +19,15 @@ from omegaconf import OmegaConf
 
 from src.reporting.tensorboard import validation_curve
 from tests.conftest import ROOT
+from tests.objects import TINY_CONV
 
 # A tiny network so three subprocess runs fit in a slow test; the adversarial regulariser is on
 # (model=conv_s2s defaults to adversarial=li2018).
 TINY = [
     "data=synthetic",
-    "model=conv_s2s",
     "trainer=cpu",
     "trainer.enable_progress_bar=false",
-    "model.net.nf=2",
-    "model.net.d_z=8",
-    "adversarial.discriminator.nf=2",
-    "adversarial.discriminator.d_z=8",
-    "adversarial.discriminator.d_fc=8",
-    "data.batch_size=4",
+    *TINY_CONV,
     "iterations=6",
     "val_every=2",
 ]

@@ -11,6 +11,7 @@ import yaml
 
 from src.lit.factory import build_datamodule, build_module
 from tests.conftest import run_module
+from tests.objects import TINY_CONV
 
 
 def test_cli_fast_dev_run_conv_s2s(tmp_path, synthetic_data_dir):
@@ -251,18 +252,7 @@ def test_evaluation_is_float32_under_bf16_autocast(train_cfg):
     assert torch.equal(errors[0], errors[1])
 
 
-TINY_ADV = [
-    "model=conv_s2s",
-    "model.net.nf=2",
-    "model.net.d_z=8",
-    "adversarial=li2018",
-    "adversarial.discriminator.nf=2",
-    "adversarial.discriminator.d_z=8",
-    "adversarial.discriminator.d_fc=8",
-    "data.batch_size=4",
-    "media_every=0",
-    "trainer.enable_progress_bar=false",
-]
+TINY_ADV = [*TINY_CONV, "media_every=0", "trainer.enable_progress_bar=false"]
 
 
 class _Batches(L.Callback):

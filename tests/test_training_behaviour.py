@@ -26,15 +26,9 @@ import torch
 
 from src.lit.compose import compose_config
 from src.lit.factory import build_datamodule, build_module
+from tests.objects import TINY_CONV
 
 TINY_G = ["model=conv_s2s", "model.net.nf=2", "model.net.d_z=8", "data.batch_size=4"]
-TINY_CONV = [
-    *TINY_G,
-    "adversarial=li2018",
-    "adversarial.discriminator.nf=2",
-    "adversarial.discriminator.d_z=8",
-    "adversarial.discriminator.d_fc=4",
-]
 TINY_GRU = ["model=gru_s2s", "model.net.hidden=16", "data.batch_size=4"]
 G_NO_DROPOUT = ["model.net.dropout=[0,0,0]", "model.net.decoder_dropout=0"]
 NO_DROPOUT = [*G_NO_DROPOUT, "+adversarial.discriminator.dropout=[0,0,0]"]

@@ -241,10 +241,8 @@ def test_a_training_step_gives_the_discriminator_each_windows_own_action(
     a window are judged with that window's action, and so is the G step's fake sequence
     (four windows of different actions, two draws of two)."""
     cfg = objects.compose(
-        ["data=synthetic", "data.future_len=5", "model=conv_s2s", "model.net.nf=2",
-         "model.net.d_z=8", "adversarial=li2018", "adversarial.discriminator.nf=2",
-         "adversarial.discriminator.d_z=8", "adversarial.discriminator.d_fc=4"],
-        tmp_path / "run", synthetic_data_dir,
+        ["data=synthetic", "data.future_len=5", *objects.TINY_CONV], tmp_path / "run",
+        synthetic_data_dir,
     )  # fmt: skip
     dm = objects.datamodule(cfg.data)
     built = objects.module(cfg, dm)
