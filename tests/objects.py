@@ -167,17 +167,6 @@ class _Recorder(L.Callback):
             self.trace.etas.append(float(eta))
 
 
-class _Batches(torch.utils.data.Dataset):
-    def __init__(self, batches):
-        self.batches = batches
-
-    def __len__(self):
-        return len(self.batches)
-
-    def __getitem__(self, i):
-        return self.batches[i]
-
-
 def with_d_windows(batch: dict[str, torch.Tensor]) -> dict:
     """A flat batch of 2n windows as an adversarial iteration's: the first n the
     discriminator's (under "d"), the other n the generator's."""
@@ -193,6 +182,13 @@ def train_steps(built, batches: list[dict[str, torch.Tensor]], seed: int = 0) ->
     if built.adversarial:
         batches = [b if "d" in b else with_d_windows(b) for b in batches]
     trace = Trace()
+    built.train()  # as built: a probe of it may have left it in eval mode
+    fit_batches(built, batches, [_Recorder(trace)], seed)
+    return trace
+
+
+def fit_batches(module, batches: list[dict], callbacks=(), seed: int = 0) -> None:
+    """A plain Trainer fits `module` one iteration per batch (CPU, no validation, no files)."""
     trainer = L.Trainer(
         accelerator="cpu",
         max_epochs=1,
@@ -201,13 +197,10 @@ def train_steps(built, batches: list[dict[str, torch.Tensor]], seed: int = 0) ->
         enable_checkpointing=False,
         enable_progress_bar=False,
         enable_model_summary=False,
-        callbacks=[_Recorder(trace)],
+        callbacks=list(callbacks),
     )
-    built.train()  # as built: a probe of it may have left it in eval mode
     torch.manual_seed(seed)  # the same dropout masks in every fit of a test
-    loader = torch.utils.data.DataLoader(_Batches(batches), batch_size=None)
-    trainer.fit(built, train_dataloaders=loader)
-    return trace
+    trainer.fit(module, train_dataloaders=torch.utils.data.DataLoader(batches, batch_size=None))
 
 
 # ------------------------------------------------------------------------------ frame paths

@@ -71,17 +71,6 @@ def test_sequence_fake_moves_the_slot_only_with_the_switch(reference):
     assert frames_of(copy) == prefix + list(range(OBSERVED, OBSERVED + FUTURE))
 
 
-class _OneBatch(torch.utils.data.Dataset):
-    def __init__(self, batch: dict[str, torch.Tensor]):
-        self.batch = batch
-
-    def __len__(self) -> int:
-        return 1
-
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        return self.batch
-
-
 @pytest.mark.parametrize("reference", [False, True])
 def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, reference):
     """Through training_step: the D step's real and fake samples and the G step's fake one."""
@@ -102,18 +91,7 @@ def test_training_step_feeds_the_discriminator_these_sequence(train_cfg, referen
     # Four different windows: two draws of two, one for the D step, one for the G step.
     observed, future = frame_batch(4, dm.normalizer.pose_dim, distinct=True)
     flat = {"observed": observed, "future": future, "action": torch.zeros(4, dtype=torch.long)}
-    batch = objects.with_d_windows(flat)
-    loader = torch.utils.data.DataLoader(_OneBatch(batch), batch_size=None)
-    trainer = L.Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        limit_val_batches=0,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-    )
-    trainer.fit(module, train_dataloaders=loader)
+    objects.fit_batches(module, [objects.with_d_windows(flat)])
 
     # The D step judges real and fake in one call: the first half real, the second fake.
     (real_and_fake, fake_g) = seen

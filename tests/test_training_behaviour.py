@@ -26,7 +26,7 @@ import torch
 
 from src.lit.compose import compose_config
 from src.lit.factory import build_datamodule, build_module
-from tests.objects import TINY_CONV
+from tests.objects import TINY_CONV, fit_batches
 
 TINY_G = ["model=conv_s2s", "model.net.nf=2", "model.net.d_z=8", "data.batch_size=4"]
 TINY_GRU = ["model=gru_s2s", "model.net.hidden=16", "data.batch_size=4"]
@@ -68,33 +68,10 @@ class StepRecorder(L.Callback):
         return [s for s in self.steps if s.net == net]
 
 
-class _Batches(torch.utils.data.Dataset):
-    def __init__(self, batches: list[dict[str, torch.Tensor]]):
-        self.batches = batches
-
-    def __len__(self) -> int:
-        return len(self.batches)
-
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        return self.batches[i]
-
-
 def _fit(module, batches: list[dict[str, torch.Tensor]], seed: int = 0) -> StepRecorder:
     """Train `module` one iteration per batch (CPU, no validation); the steps it took."""
     recorder = StepRecorder()
-    trainer = L.Trainer(
-        accelerator="cpu",
-        max_epochs=1,
-        limit_val_batches=0,
-        logger=False,
-        enable_checkpointing=False,
-        enable_progress_bar=False,
-        enable_model_summary=False,
-        callbacks=[recorder],
-    )
-    torch.manual_seed(seed)  # the same dropout masks in every fit of a test
-    loader = torch.utils.data.DataLoader(_Batches(batches), batch_size=None)
-    trainer.fit(module, train_dataloaders=loader)
+    fit_batches(module, batches, [recorder], seed)
     return recorder
 
 
