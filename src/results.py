@@ -13,7 +13,13 @@ from src.lit.config import check
 from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
 from src.reporting.published import published_for
-from src.reporting.tables import result_table, results_from_metric, table_markdown, tables_csv
+from src.reporting.tables import (
+    long_rows,
+    result_table,
+    results_from_metric,
+    table_markdown,
+    tables_csv,
+)
 from src.scoring import score_predictions
 
 
@@ -54,9 +60,10 @@ def evaluate(cfg: DictConfig) -> dict:
     tables = build_tables(module, dm, model_cfg, dataset)
     out_dir = Path(cfg.paths.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    run_name = training_run_name(cfg.ckpt_path) if cfg.ckpt_path else model_cfg["name"]
     provenance = {
         "model": model_cfg["name"],
-        "run_name": training_run_name(cfg.ckpt_path) if cfg.ckpt_path else model_cfg["name"],
+        "run_name": run_name,
         "dataset": dataset,
         "checkpoint": str(cfg.ckpt_path) if cfg.ckpt_path else None,
         "predictions": str(cfg.predictions) if cfg.get("predictions") else None,
@@ -65,10 +72,16 @@ def evaluate(cfg: DictConfig) -> dict:
         "missing_files": list(dm.missing_files),
         "commit": git_commit(),
         "wall_time_s": round(time.perf_counter() - start, 1),
+        "published": model_cfg.get("published"),  # the reference src.report judges against
     }
     markdown = "\n\n".join(table_markdown(t) for t in tables)
     (out_dir / "results.md").write_text(markdown + "\n")
     (out_dir / "results.csv").write_text(tables_csv(tables))
+    ckpt = Path(cfg.ckpt_path) if cfg.ckpt_path else None
+    keys = {"run": str(ckpt.parent.parent) if ckpt else run_name, "experiment": run_name}
+    keys |= {"dataset": dataset, "seed": module.run_info["config"].get("seed") if ckpt else None}
+    keys |= {"protocol": dm.eval_protocol, "checkpoint": ckpt.name if ckpt else "-"}
+    long_rows(tables, **keys).to_csv(out_dir / "results_long.csv", index=False)
     result = {"provenance": provenance, "tables": tables}
     # Last and whole or not at all: its presence marks the folder complete (src/eval.py's
     # started=), which a Ctrl-C or a refusal leaves in place.

@@ -29,6 +29,7 @@ from tests.test_report import (
     offset_run,
     report_cfg,
     row_of,
+    rows_of,
     tables,
 )
 
@@ -59,10 +60,28 @@ def gru_result(delta: float) -> dict:
     return {"provenance": {"missing_files": []}, "tables": tables(values, actions, ABSENT, ref=GRU)}
 
 
+def absent(run: dict, *actions: str) -> None:
+    """The actions absent from the run's evaluations, as a data copy without them gives."""
+    gone = run["rows"].action.isin(actions)
+    run["rows"].loc[gone, ["value", "absent"]] = [float("nan"), "not in this copy"]
+
+
+def zero_of(result: dict) -> dict:
+    """A zero-velocity baseline whose evaluation is `result`."""
+    ref = {"paper": "martinez2017", "method": "zero_velocity"}
+    return {
+        "label": "zero_velocity",
+        "dataset": "h36m",
+        "rows": rows_of({"-": {"srnn": result}}),
+        "published": ref,
+    }
+
+
 def gru_run(seed: int, delta: float) -> dict:
     run = fake_run(seed, 0.0, 0.0, "martinez2017_res_sup")
     result = gru_result(delta)
-    run["results"] = {s: {"srnn": result, "random": result} for s in ("best", "last")}
+    run["config"]["model"]["published"] = GRU
+    run["rows"] = rows_of({s: {"srnn": result, "random": result} for s in ("best", "last")})
     return run
 
 
@@ -71,7 +90,7 @@ def seeded(delta: float, seed: int, run_name="li2018_h36m", dataset="h36m", abse
     run["seed"] = run["config"]["seed"] = seed
     run["path"] = f"job{seed}/train/runs/{run_name}/2026-01-01_00-00-00"
     results = {p: offset_result(delta, dataset, absent) for p in ("srnn", "random")}
-    run["results"] = {"best": results, "last": results}
+    run["rows"] = rows_of({"best": results, "last": results})
     return run
 
 
@@ -152,11 +171,7 @@ def test_without_a_slip_the_models_own_paper_is_the_judge():
     """Where the data copy lacks the actions that carry the slips, the GRU is judged against
     Martinez et al., its own paper."""
     run = gru_run(1, 0.0)
-    for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
-        for table in result["tables"]:
-            for action in ("smoking", "phoning"):
-                table["values"].pop(action)
-                table["absent"][action] = "not in this copy"
+    absent(run, "smoking", "phoning")
     results = Results(group_runs([run]))
     verdict = results.judge(results.groups[0], "srnn", 0.03)
     assert verdict.reference.key == "martinez2017 residual_sup_ma"
@@ -184,10 +199,7 @@ def test_martinez_phoning_is_a_known_slip_flagged_where_it_enters_an_average():
     assert "Martinez et al. residual_sup_ma, 9 actions (slips left out: smoking, phoning) " in head
     assert "Li et al. rrnn, 11 actions " in head  # RRNN's average has no slip
     # Without phoning among the evaluated actions, the flag names smoking only.
-    for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
-        for table in result["tables"]:
-            table["values"].pop("phoning")
-            table["absent"]["phoning"] = "not in this copy"
+    absent(run, "phoning")
     assert "9 actions (slips left out: smoking) " in head_of([run])[1]
 
 
@@ -258,7 +270,7 @@ def test_the_zero_velocity_yardstick_is_a_row_on_the_same_actions():
     """Issue 39: the zero-velocity baseline, evaluated by the report on the same data, is the
     first yardstick a reader asks for: its average over the same actions stands in the
     headline after its dataset's experiments."""
-    zero = {"label": "zero_velocity", "dataset": "h36m", "results": {"srnn": offset_result(0.3)}}
+    zero = zero_of(offset_result(0.3))
     results = Results(group_runs([seeded(0.0, 1)]), [zero])
     head, _, _ = headline_table(results, "srnn", TARGETS, None)
     row = cells(head)[-1]
@@ -278,7 +290,7 @@ def test_the_zero_velocity_yardstick_is_a_row_on_the_same_actions():
 def test_a_row_no_better_than_zero_velocity_says_so_in_its_verdict(delta, clause):
     """Issue 53: beating zero-velocity is the papers' headline claim, so a trained row whose
     printed average is not below zero-velocity's on the same actions says where."""
-    zero = {"label": "zero_velocity", "dataset": "h36m", "results": {"srnn": offset_result(0.01)}}
+    zero = zero_of(offset_result(0.01))
     results = Results(group_runs([seeded(delta, 1)]), [zero])
     head, _, _ = headline_table(results, "srnn", TARGETS, None)
     verdict = row_of(head, "li2018_h36m")[-1]
@@ -409,7 +421,7 @@ def test_the_page_goes_to_the_commands_folder_unless_out_is_given(tmp_path, monk
 
     def evaluate_run(run, index, protocols, work):
         result = offset_result(0.0)
-        run["results"] = {s: {p: result for p in protocols} for s in ("best", "last")}
+        run["rows"] = rows_of({s: {p: result for p in protocols} for s in ("best", "last")})
 
     monkeypatch.setattr("src.report.evaluate_run", evaluate_run)
     run = make_run(tmp_path / "runs" / "li2018_h36m" / "t", summary={"iterations": 4000})

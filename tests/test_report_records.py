@@ -17,6 +17,7 @@ from tests.test_report import (
     offset_result,
     refusal,
     report_cfg,
+    rows_of,
 )
 
 
@@ -31,8 +32,9 @@ def evaluations(monkeypatch):
     def evaluate_run(run, index, protocols, work):
         evaluated.append(run["path"])
         result = offset_result(run["seed"] / 100)
-        result["provenance"]["checkpoint"] = str(run["checkpoints"]["best"])
-        run["results"] = {s: {p: result for p in protocols} for s in ("best", "last")}
+        rows = rows_of({s: {p: result for p in protocols} for s in ("best", "last")})
+        keys = {"experiment": run["config"]["run_name"], "dataset": run["config"]["data"]["name"]}
+        run["rows"] = rows.assign(run=run["path"], seed=run["seed"], iterations=4000, **keys)
 
     monkeypatch.setattr("src.report.evaluate_run", evaluate_run)
     return evaluated
@@ -137,9 +139,7 @@ def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluat
     text = record.read_text()
     assert str(tmp_path) not in text
     data = json.loads(text)
-    assert "checkpoints" not in data
-    prov = data["results"]["best"]["srnn"]["provenance"]
-    assert prov["checkpoint"] == "li2018_h36m_s1/t/checkpoints/last.ckpt"
+    assert data["checkpoints"]["best"] == "li2018_h36m_s1/t/checkpoints/last.ckpt"
     assert data["evaluated"]["commit"] and data["seed"] == 1
 
 
@@ -158,8 +158,7 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     (record,) = records.glob("*.json")
     data = json.loads(record.read_text())
     assert data["path"] == "li2018_h36m/t2"
-    prov = data["results"]["best"]["srnn"]["provenance"]
-    assert prov["checkpoint"] == "li2018_h36m/t1/checkpoints/best-epoch001.ckpt"
+    assert data["checkpoints"]["best"] == "li2018_h36m/t1/checkpoints/best-epoch001.ckpt"
     # A segment outside the folders given (resumed under another paths.log_dir): named by its
     # file inside the run's folder, not by an absolute path.
     best = tmp_path / "elsewhere" / "checkpoints" / "best-epoch002.ckpt"
@@ -169,8 +168,8 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     report(tmp_path, moved, records=records)
     (record,) = records.glob("*.json")
     assert str(tmp_path) not in record.read_text()
-    prov = json.loads(record.read_text())["results"]["best"]["srnn"]["provenance"]
-    assert prov["checkpoint"] == "li2018_h36m/t3/checkpoints/best-epoch002.ckpt"
+    checkpoint = json.loads(record.read_text())["checkpoints"]["best"]
+    assert checkpoint == "li2018_h36m/t3/checkpoints/best-epoch002.ckpt"
 
 
 @pytest.mark.parametrize(
@@ -189,7 +188,7 @@ def test_a_bad_record_is_refused_naming_the_file_and_the_fix(
     (record,) = records.glob("*.json")
     protocols = "protocols=[srnn,random]" if content == "NO_RANDOM" else "protocols=[srnn]"
     if content == "WRONG_FORMAT":
-        record.write_text(record.read_text().replace('"format": 1', '"format": 99'))
+        record.write_text(record.read_text().replace('"format": 2', '"format": 99'))
     elif content != "NO_RANDOM":
         record.write_text(content)
     text = refusal(capsys, report_cfg(tmp_path, f"records={records}", "datasets=[]", protocols))

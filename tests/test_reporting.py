@@ -8,6 +8,7 @@ import math
 import os
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import torch
 
@@ -23,6 +24,7 @@ from src.reporting.published import (
 )
 from src.reporting.tables import (
     AVERAGE,
+    long_rows,
     result_table,
     results_from_metric,
     same_set_average,
@@ -373,15 +375,9 @@ def seed_runs(offsets) -> list[dict]:
             published=None,
         )
         config = {"run_name": "m", "seed": seed, "data": {"name": "synthetic"}}
-        result = {"provenance": {}, "tables": [table]}
-        runs.append(
-            {
-                "config": config,
-                "seed": seed,
-                "path": f"r{seed}",
-                "results": {"best": {"srnn": result}, "last": {"srnn": result}},
-            }
-        )
+        rows = [long_rows([table], protocol="srnn", checkpoint=s) for s in ("best", "last")]
+        rows = pd.concat(rows, ignore_index=True)
+        runs.append({"config": config, "seed": seed, "path": f"r{seed}", "rows": rows})
     return runs
 
 
@@ -416,9 +412,8 @@ def test_one_seed_has_no_spread():
 
 def test_seeds_evaluated_on_other_actions_are_refused():
     runs = seed_runs((0.0, 0.02))
-    table = runs[1]["results"]["best"]["srnn"]["tables"][0]
-    table["values"]["discussion"] = {"80": 0.1, "160": 0.1}
-    del table["absent"]["discussion"]
+    rows = runs[1]["rows"]
+    rows.loc[rows.action == "discussion", ["value", "absent"]] = [0.1, ""]
     with pytest.raises(ReportingError, match="seeds were evaluated on different actions"):
         Results(group_runs(runs))
 

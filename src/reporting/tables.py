@@ -23,6 +23,11 @@ AVERAGE = "average"
 AVERAGE_TRAINED = "average_trained"  # over the evaluated actions with training files
 AS_PRINTED = "average_as_printed"
 RIGHT = ("n", "iterations", "seed", "best at", "wall time")
+# An evaluation as long rows (results_long.csv, a record in docs/runs): a value per run,
+# protocol, checkpoint ("best", "last", "validation"), metric, action ("average" for a
+# validation) and horizon; an absent action's rows hold no value and the reason.
+LONG = ["run", "experiment", "dataset", "seed", "iterations", "protocol", "checkpoint"]
+LONG += ["metric", "action", "horizon", "value", "absent"]
 
 
 def markdown(rows, columns=None) -> str:
@@ -187,6 +192,23 @@ def table_markdown(table: dict) -> str:
         who = [a for a in table["actions"] if table["absent"].get(a) == reason]
         lines.append(f"- [{k}] absent ({', '.join(who)}): {reason}")
     return "\n".join(lines) + "\n"
+
+
+def long_rows(tables, **keys) -> pd.DataFrame:
+    """The tables' values as LONG rows, `keys` (run, experiment, ...) the same in each."""
+    rows = [
+        (t["metric"], a, int(ms), t["values"].get(a, {}).get(str(ms), math.nan))
+        + (t["absent"].get(a, ""),)
+        for t in tables
+        for a in t["actions"]
+        for ms in t["horizons_ms"]
+    ]
+    return pd.DataFrame(rows, columns=LONG[7:]).assign(**dict.fromkeys(LONG[:7]) | keys)[LONG]
+
+
+def read_long(path) -> pd.DataFrame:
+    frame = pd.read_csv(path)
+    return frame.assign(absent=frame.absent.fillna(""))
 
 
 def tables_csv(tables) -> str:
