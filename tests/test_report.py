@@ -28,7 +28,8 @@ from src.reporting.page import (
 )
 from src.reporting.published import published_for, published_table
 from src.reporting.runs import discover_runs, find_checkpoints
-from src.reporting.tables import AVERAGE, long_rows, result_table, same_set_average
+from src.reporting.tables import AVERAGE, same_set_average
+from src.results import long_rows, result_table
 from tests.conftest import compose_config
 
 TARGETS = {"h36m": 0.03, "cmu": 0.05}

@@ -22,15 +22,8 @@ from src.reporting.published import (
     published_frame,
     published_table,
 )
-from src.reporting.tables import (
-    AVERAGE,
-    long_rows,
-    result_table,
-    results_from_metric,
-    same_set_average,
-    table_markdown,
-    tables_csv,
-)
+from src.reporting.tables import AVERAGE, same_set_average
+from src.results import long_rows, result_table, results_from_metric, table_markdown, tables_csv
 
 PACKAGED_CSV = Path(__file__).parents[1] / "src" / "reporting" / "published_results.csv"
 # The 11 H3.6M actions this data copy can evaluate (the test files of the other 4 are missing).

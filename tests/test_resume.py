@@ -17,7 +17,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.reporting.tensorboard import validation_curve
+from src.reporting.runs import validation_curve
 from tests.conftest import ROOT
 
 # A tiny network so three subprocess runs fit in a slow test; the adversarial regulariser is on

@@ -17,8 +17,8 @@ import yaml
 from src.lit.factory import PROJECT_ROOT, ConfigError
 from src.reporting.groups import identity
 from src.reporting.tables import LONG, read_long, read_results
-from src.reporting.tensorboard import validation_curve
 
+AVERAGE_TAG = "val_euler/average/"  # the TensorBoard tags of the validations
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
 RECORD_FORMAT = 2
 RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations")
@@ -95,6 +95,24 @@ def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
     ckpt = read_checkpoint(path)
     missing = list(ckpt.get("motion", {}).get("missing_files") or [])
     return ckpt.get("global_step"), missing
+
+
+def validation_curve(run: Path) -> dict[int, dict[int, float]]:
+    """{iterations done: {ms: average Euler error}} at each validation, from TensorBoard ({}
+    without): logged at the step of the iteration before it (from 0), so after `step + 1`."""
+    folder = Path(run) / "tensorboard"
+    if not any(folder.glob("events.out.tfevents.*")):
+        return {}
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(folder), size_guidance={"scalars": 0}).Reload()
+    curve: dict[int, dict[int, float]] = {}
+    for tag in events.Tags()["scalars"]:
+        if tag.startswith(AVERAGE_TAG) and tag.endswith("ms"):
+            ms = int(tag[len(AVERAGE_TAG) : -2])
+            for event in events.Scalars(tag):  # a step logged twice: the later value
+                curve.setdefault(event.step + 1, {})[ms] = float(event.value)
+    return dict(sorted(curve.items()))
 
 
 def load_run(path: Path, root: Path) -> dict:
