@@ -96,8 +96,8 @@ def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evalu
     assert without_record_notes(from_records) == without_record_notes(from_runs)
     assert seeds(from_records) == [("li2018_h36m", "1"), ("li2018_h36m", "2")]
     # The page says which rows came from a record, and when they were evaluated.
-    assert from_records.count("record li2018_h36m_seed") == 2
-    assert "record li2018_h36m_seed" not in from_runs
+    assert from_records.count("record li2018_h36m_h36m_") == 2
+    assert "record li2018_h36m_" not in from_runs
 
 
 def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(
@@ -122,11 +122,11 @@ def test_the_same_run_given_again_counts_once_and_replaces_its_record(
     assert len(evaluations) == 2  # the folder given wins over its record, and is evaluated
     assert len(list(records.glob("*.json"))) == 1
     assert seeds(page) == [("li2018_h36m", "1")]
-    assert "same configuration and seed" not in page  # not a copy of itself
+    assert "Runs counted once" not in page  # not a copy of itself
     # Given beside a run from elsewhere, it shows under a longer path: still its own record.
     other = seed_run(tmp_path / "elsewhere", 2)
     page = report(tmp_path, run, other, records=records)
-    assert "`runs/li2018_h36m_s1/t`" in page and "same configuration and seed" not in page
+    assert "`runs/li2018_h36m_s1/t`" in page and "Runs counted once" not in page
     assert seeds(page).count(("li2018_h36m", "1")) == 1 and len(list(records.glob("*.json"))) == 2
     # Another experiment of the same seed is another record, not a replacement.
     report(tmp_path, seed_run(tmp_path, 1, "li2018_h36m_C10"), records=records)
@@ -152,9 +152,9 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     summary = {"iterations": 4000, "best_checkpoint": str(best)}
     make_run(runs / "t2", summary=summary, ckpt_path=str(first / "checkpoints" / "last.ckpt"))
     page = report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", records=records)
-    # The stopped segment is named as the resumed run's, not as a copy of it.
-    assert "continues 1 earlier segment(s) of itself: `t1` (4,000)" in page
-    assert "same configuration" not in page
+    # The stopped segment counts once with the finished run that continues it.
+    (line,) = [x for x in page.splitlines() if x.startswith("**Runs counted once.**")]
+    assert "`li2018_h36m/t2` (4,000 iterations) kept; `li2018_h36m/t1` (4,000)" in line
     (record,) = records.glob("*.json")
     data = json.loads(record.read_text())
     assert data["path"] == "li2018_h36m/t2"

@@ -15,7 +15,6 @@ import pandas as pd
 import yaml
 
 from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.reporting.groups import identity
 from src.reporting.tables import LONG, read_long, read_results
 
 AVERAGE_TAG = "val_euler/average/"  # the TensorBoard tags of the validations
@@ -146,23 +145,24 @@ def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list
     folders = discover_runs(paths)
     root = display_root(folders) if folders else PROJECT_ROOT
     runs = [load_run(folder, root) for folder in folders]
-    given = {(record_name(r), Path(r["path"]).parts) for r in runs}
-
-    def same_run(record: dict) -> bool:  # shown paths end alike: each is relative to its root
-        mine = Path(record["path"]).parts[::-1]
-        ends = lambda theirs: all(a == b for a, b in zip(mine, theirs[::-1], strict=False))  # noqa: E731
-        return any(name == record_name(record) and ends(theirs) for name, theirs in given)
-
     recorded = read_records(records, protocols) if records else []
-    return runs + [r for r in recorded if not same_run(r)]
+
+    def same(
+        run: dict, record: dict
+    ) -> bool:  # shown paths end alike: each is relative to its root
+        ends = zip(Path(run["path"]).parts[::-1], Path(record["path"]).parts[::-1], strict=False)
+        return record_name(run) == record_name(record) and all(a == b for a, b in ends)
+
+    for run in runs:  # a run given again is written over its record
+        run["record"] = next((r["record"] for r in recorded if same(run, r)), None)
+    return runs + [r for r in recorded if not any(same(run, r) for run in runs)]
 
 
 def record_name(run: dict) -> str:
+    """<run_name>_<dataset>_<iterations planned>_seed<seed>: a row's seed (groups.py)."""
     config = run["config"]
-    ident = [config.get("run_name"), config["data"]["name"], identity(config)]
-    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:10]
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(config.get("run_name", "run")))
-    return f"{name}_seed{run['seed']}_{digest}"
+    name = f"{config.get('run_name', 'run')}_{config['data']['name']}_{config.get('iterations')}"
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{name}_seed{run['seed']}")
 
 
 def _portable(value):
@@ -204,7 +204,7 @@ def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
         "notes": run.get("notes", []),
         **{k: run[k] for k in KEPT.split() if k in run},
     }
-    path = Path(folder) / record_name(run)
+    path = Path(folder) / (run.get("record") or record_name(run))
     rows = pd.concat([run["rows"], validation_rows(run)], ignore_index=True)
     rows.to_csv(path.with_suffix(".csv"), index=False)
     path.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
@@ -253,7 +253,7 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
             for i, c in curve.groupby("iterations")
         }
         record["rows"] = rows[rows.checkpoint != "validation"].reset_index(drop=True)
-        runs.append({**record, "recorded": True})
+        runs.append({**record, "recorded": True, "record": path.stem})
     return runs
 
 
