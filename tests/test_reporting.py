@@ -22,7 +22,7 @@ from src.reporting.published import (
     published_frame,
     published_table,
 )
-from src.reporting.tables import AVERAGE, same_set_average
+from src.reporting.tables import AVERAGE, LONG, same_set_average
 from src.results import long_rows, result_table, results_from_metric, table_markdown, tables_csv
 
 PACKAGED_CSV = Path(__file__).parents[1] / "src" / "reporting" / "published_results.csv"
@@ -436,3 +436,14 @@ def test_results_csv_of_eval_is_one_table_that_tells_the_metrics_apart(
             if (r["metric"], r["action"], r["ms"]) == (table["metric"], "walking", "80")
         ]
         assert [float(r["value"]) for r in walking] == [table["values"]["walking"]["80"]]
+    # results_long.csv: one row per metric, action and horizon, each value as results.json
+    # holds it, absent actions without a value (none on synthetic data).
+    long = pd.read_csv(tmp_path / "results_long.csv")
+    assert list(long.columns) == LONG
+    assert set(long.experiment) == {"zero_velocity"} and set(long.checkpoint) == {"-"}
+    assert set(long.protocol) == {result["provenance"]["eval_protocol"]}
+    for table in result["tables"]:
+        mine = long[long.metric == table["metric"]]
+        assert len(mine) == len(table["actions"]) * len(table["horizons_ms"])
+        for action, ms, value in mine[["action", "horizon", "value"]].itertuples(index=False):
+            assert value == table["values"][action][str(ms)]
