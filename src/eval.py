@@ -1,6 +1,7 @@
 """`python -m src.eval`: a baseline, a trained checkpoint or a file of predictions from any code
 (src/scoring.py) evaluated on the protocol's test windows; the tables are printed and written as
-results.{md,csv,json} into the run's folder (src/results.py). Usage: `--help`, README.
+results.{md,csv,json} and as long rows (results_long.csv) into the run's folder
+(src/results.py). Usage: `--help`, README.
 """
 
 from src.cli import hydra_entry

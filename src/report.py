@@ -12,12 +12,12 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import itertools
-import json
 import os
 import re
 import shlex
 from pathlib import Path
 
+import pandas as pd
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
@@ -28,51 +28,60 @@ from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
 from src.reporting.page import replace_block, write_page
 from src.reporting.runs import gather_runs, mark_archives, scored_entries, write_record
+from src.reporting.tables import read_long
 from src.results import evaluate as run_eval
 
 BASELINES = ("zero_velocity", "running_avg_2", "running_avg_4")
 
 
-def evaluate(overrides: list[str], out_dir: Path) -> dict:
-    """src.eval's results.json (as a dict) into out_dir, its printed tables into a file there."""
+def evaluate(overrides: list[str], out_dir: Path):
+    """(results.json as a dict, its long rows) of src.eval into out_dir, its tables in a file."""
     cfg = compose_config("eval", overrides, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     with (out_dir / "stdout.txt").open("w") as fh, contextlib.redirect_stdout(fh):
-        return run_eval(cfg)
+        result = run_eval(cfg)
+    return result, read_long(out_dir / "results_long.csv")
 
 
 def evaluate_run(run: dict, index: int, protocols: list[str], work: Path) -> None:
     checkpoints, iterations = run["checkpoints"], run["iterations_of"]
     name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", str(run["config"].get("run_name", "run")))
-    same, best = checkpoints["last"] == checkpoints["best"], {}
+    same = checkpoints["last"] == checkpoints["best"]
     one = same or (iterations["best"] is not None and iterations["best"] == iterations["last"])
-    run["results"] = {"best": best, "last": best if one else {}}
     # One file for both means one was missing (find_checkpoints said which), not that the error
     # was lowest at the end.
     if one and not same:
         run["notes"].append("best = last (lowest error at the final validation)")
-    for selection, results in run["results"].items():
-        for protocol in protocols if not results else ():
+    rows, missing = [], []
+    for selection in ("best",) if one else ("best", "last"):
+        for protocol in protocols:
             print(f"evaluating {run['path']} ({selection}, {protocol})", flush=True)
-            results[protocol] = evaluate(
+            result, found = evaluate(
                 [f"ckpt_path='{checkpoints[selection]}'", f"protocol={protocol}"],
                 work / f"{index:03d}_{name}_seed{run['seed']}" / f"{selection}_{protocol}",
             )
-    run["missing_files"] = run["results"]["best"][protocols[0]]["provenance"]["missing_files"]
+            keys = {"run": run["path"], "seed": run["seed"], "checkpoint": selection}
+            rows.append(found.assign(iterations=iterations[selection], **keys))
+            missing = missing or result["provenance"]["missing_files"]
+    rows += [r.assign(checkpoint="last", iterations=iterations["last"]) for r in rows if one]
+    run["rows"], run["missing_files"] = pd.concat(rows, ignore_index=True), missing
 
 
 def evaluate_baselines(datasets, protocols: list[str], work: Path, commit: str) -> list[dict]:
     baselines = []
     for dataset, model in itertools.product(datasets, BASELINES):
-        results = {}
+        rows = []
         for protocol in protocols:
             print(f"evaluating {model} on {dataset} ({protocol})", flush=True)
             overrides = [f"model={model}", f"data={dataset}", f"protocol={protocol}"]
             folder = work / "baselines" / f"{model}_{dataset}_{protocol}"
-            results[protocol] = evaluate([*overrides, "data.allow_partial=true"], folder)
-        missing = results[protocol]["provenance"]["missing_files"]
-        entry = {"label": model, "dataset": dataset, "commit": commit, "results": results}
-        baselines.append(entry | {"missing_files": missing})
+            result, found = evaluate([*overrides, "data.allow_partial=true"], folder)
+            rows.append(found)
+        prov = result["provenance"]
+        entry = {"label": model, "dataset": dataset, "commit": commit, "rows": pd.concat(rows)}
+        baselines.append(
+            entry | {"missing_files": prov["missing_files"], "published": prov["published"]}
+        )
     return baselines
 
 
@@ -115,9 +124,6 @@ def main(cfg: DictConfig) -> int:
     out = Path(cfg.out or work / "results.md").resolve()
     replaced = out.exists()
     write_page(results, out, protocols, command, cfg.budget, commit, targets, notes, readme)
-    raw = [{"label": g.label, "dataset": g.dataset, "runs": g.runs} for g in groups]
-    raw = json.dumps({"groups": raw, "baselines": baselines}, indent=1, default=str)
-    (work / "report.json").write_text(raw)
     results.frame.to_csv(work / "results_long.csv", index=False)
     print(
         f"wrote {out}{' (replacing the file that was there)' if replaced else ''}, its figures "

@@ -34,9 +34,24 @@ from src.lit.progress import ProgressLog, iteration_bar
 from src.lit.resume import describe, prepare_training
 from src.lit.run_folders import holds_run
 from src.metrics.averages import averages
-from src.reporting.tensorboard import add_error_curve_layout
 
 log = logging.getLogger(__name__)
+
+
+def add_error_curve_layout(writer, actions: list[str], horizons, averages=None) -> None:
+    """Custom scalars: a chart per metric and action (and average), a line per horizon.
+    `averages`: src.lit.predictor.averages() of the run; a chart's title names its set where
+    there are two (the tag stays `average`: validation_curve reads old runs by it)."""
+    titles = {n: f"average ({words})" if words else n for n, (_, words) in (averages or {}).items()}
+    charts = {"average": "average"} | titles | {a: a for a in actions}
+    layout = {
+        f"val {m} error per horizon": {
+            title: ["Multiline", [f"val_{m}/{tag}/{ms:04d}ms" for ms in horizons]]
+            for tag, title in charts.items()
+        }
+        for m in ("euler", "mpjpe")
+    }
+    writer.add_custom_scalars(layout)
 
 
 def train(cfg: DictConfig) -> float:

@@ -29,6 +29,7 @@ from tests.test_report import (
     offset_run,
     report_cfg,
     row_of,
+    rows_of,
     tables,
 )
 
@@ -59,10 +60,28 @@ def gru_result(delta: float) -> dict:
     return {"provenance": {"missing_files": []}, "tables": tables(values, actions, ABSENT, ref=GRU)}
 
 
+def absent(run: dict, *actions: str) -> None:
+    """The actions absent from the run's evaluations, as a data copy without them gives."""
+    gone = run["rows"].action.isin(actions)
+    run["rows"].loc[gone, ["value", "absent"]] = [float("nan"), "not in this copy"]
+
+
+def zero_of(result: dict) -> dict:
+    """A zero-velocity baseline whose evaluation is `result`."""
+    ref = {"paper": "martinez2017", "method": "zero_velocity"}
+    return {
+        "label": "zero_velocity",
+        "dataset": "h36m",
+        "rows": rows_of({"-": {"srnn": result}}),
+        "published": ref,
+    }
+
+
 def gru_run(seed: int, delta: float) -> dict:
     run = fake_run(seed, 0.0, 0.0, "martinez2017_res_sup")
     result = gru_result(delta)
-    run["results"] = {s: {"srnn": result, "random": result} for s in ("best", "last")}
+    run["config"]["model"]["published"] = GRU
+    run["rows"] = rows_of({s: {"srnn": result, "random": result} for s in ("best", "last")})
     return run
 
 
@@ -71,7 +90,7 @@ def seeded(delta: float, seed: int, run_name="li2018_h36m", dataset="h36m", abse
     run["seed"] = run["config"]["seed"] = seed
     run["path"] = f"job{seed}/train/runs/{run_name}/2026-01-01_00-00-00"
     results = {p: offset_result(delta, dataset, absent) for p in ("srnn", "random")}
-    run["results"] = {"best": results, "last": results}
+    run["rows"] = rows_of({"best": results, "last": results})
     return run
 
 
@@ -152,11 +171,7 @@ def test_without_a_slip_the_models_own_paper_is_the_judge():
     """Where the data copy lacks the actions that carry the slips, the GRU is judged against
     Martinez et al., its own paper."""
     run = gru_run(1, 0.0)
-    for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
-        for table in result["tables"]:
-            for action in ("smoking", "phoning"):
-                table["values"].pop(action)
-                table["absent"][action] = "not in this copy"
+    absent(run, "smoking", "phoning")
     results = Results(group_runs([run]))
     verdict = results.judge(results.groups[0], "srnn", 0.03)
     assert verdict.reference.key == "martinez2017 residual_sup_ma"
@@ -184,10 +199,7 @@ def test_martinez_phoning_is_a_known_slip_flagged_where_it_enters_an_average():
     assert "Martinez et al. residual_sup_ma, 9 actions (slips left out: smoking, phoning) " in head
     assert "Li et al. rrnn, 11 actions " in head  # RRNN's average has no slip
     # Without phoning among the evaluated actions, the flag names smoking only.
-    for result in {id(r): r for s in run["results"].values() for r in s.values()}.values():
-        for table in result["tables"]:
-            table["values"].pop("phoning")
-            table["absent"]["phoning"] = "not in this copy"
+    absent(run, "phoning")
     assert "9 actions (slips left out: smoking) " in head_of([run])[1]
 
 
@@ -258,7 +270,7 @@ def test_the_zero_velocity_yardstick_is_a_row_on_the_same_actions():
     """Issue 39: the zero-velocity baseline, evaluated by the report on the same data, is the
     first yardstick a reader asks for: its average over the same actions stands in the
     headline after its dataset's experiments."""
-    zero = {"label": "zero_velocity", "dataset": "h36m", "results": {"srnn": offset_result(0.3)}}
+    zero = zero_of(offset_result(0.3))
     results = Results(group_runs([seeded(0.0, 1)]), [zero])
     head, _, _ = headline_table(results, "srnn", TARGETS, None)
     row = cells(head)[-1]
@@ -278,7 +290,7 @@ def test_the_zero_velocity_yardstick_is_a_row_on_the_same_actions():
 def test_a_row_no_better_than_zero_velocity_says_so_in_its_verdict(delta, clause):
     """Issue 53: beating zero-velocity is the papers' headline claim, so a trained row whose
     printed average is not below zero-velocity's on the same actions says where."""
-    zero = {"label": "zero_velocity", "dataset": "h36m", "results": {"srnn": offset_result(0.01)}}
+    zero = zero_of(offset_result(0.01))
     results = Results(group_runs([seeded(delta, 1)]), [zero])
     head, _, _ = headline_table(results, "srnn", TARGETS, None)
     verdict = row_of(head, "li2018_h36m")[-1]
@@ -312,92 +324,31 @@ def test_the_page_lists_h36m_then_cmu_then_the_ablations():
     assert [r[0] for r in cells(head) if r[3] == "ours, best"] == order[:3]
 
 
-def test_settings_that_tell_rows_apart_go_to_a_footnote():
-    switched = seeded(0.0, 1)
-    switched["config"]["adversarial"]["reference_fake_slot"] = True
-    _, head, notes, _ = head_of([seeded(0.0, 1), switched])
-    rows = [r for r in cells(head) if r[3] == "ours, best"]
-    assert rows[0][:2] == ["li2018_h36m¹", "h36m"]
-    assert rows[1][:2] == ["li2018_h36m, reference-code switches²", "h36m"]
-    assert "¹ li2018_h36m: adversarial.reference_fake_slot=False." in notes
-    assert "² li2018_h36m, reference-code switches: adversarial.reference_fake_slot=True." in notes
-
-
-def test_a_run_from_before_a_switch_existed_is_a_seed_of_the_runs_with_it_off():
-    older, off, on = seeded(0.0, 1), seeded(0.0, 2), seeded(0.0, 3)
-    off["config"]["data"]["reference_angle_wrap"] = False
-    on["config"]["data"]["reference_angle_wrap"] = True
-    _, head, notes, _ = head_of([older, off, on])
-    rows = [r for r in cells(head) if r[3] == "ours, best"]
-    assert [r[:2] + [r[4]] for r in rows] == [
-        ["li2018_h36m¹", "h36m", "2"],
-        ["li2018_h36m, reference-code switches²", "h36m", "1"],
-    ]
-    assert "¹ li2018_h36m: data.reference_angle_wrap=False." in notes
-
-
 # --- identical runs are one seed --------------------------------------------------------------
 
 
 def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
+    """Runs of one seed (a copy, a sweep job, a killed run and its resumed segments) count
+    once: the longest trained is kept, the page names the others, and the kept run's
+    validation curve is joined from all of them."""
     single = seeded(0.0, 1234)
     sweep = copy.deepcopy(single)
     sweep["path"] = "multiruns/2026-01-01/0_li2018_h36m_seed1234"
     (group,) = group_runs([single, sweep, seeded(0.01, 2)])
     assert [r["seed"] for r in group.runs] == [2, 1234]  # in seed order
-    assert group.runs[1] is single
-    (line,) = group.left_out
-    assert "seed 1234: `multiruns/2026-01-01/0_li2018_h36m_seed1234` has the same" in line
-    assert f"`{single['path']}`, which was kept (given first)" in line
+    assert group.runs[1] is single  # of equals, the first given
     page = build_page(Results([group]), ["srnn"], "cmd", None, "abc1234", TARGETS)
     assert "li2018_h36m (h36m, 4,000 iterations): 2 seeds (2, 1234)" in page
-    assert "(1234, 1234)" not in page
-    assert "**Runs counted once.** seed 1234:" in page
-    # Of a run and its unfinished earlier copy, the one that trained longer is kept.
+    (line,) = [x for x in page.splitlines() if x.startswith("**Runs counted once.**")]
+    assert single["path"] in line and sweep["path"] in line
+    # Of a resumed run and its earlier segment, the one that trained longer is kept.
     short = copy.deepcopy(single)
     short.update(path="killed", iterations=1000, finished=False)
-    (group,) = group_runs([short, single])
-    assert (
-        group.runs == [single]
-        and "(it trained 4,000 iterations, that one 1,000)" in (group.left_out[0])
-    )
-
-
-def test_the_segments_of_a_resumed_run_are_named_as_such_and_a_copy_as_a_copy():
-    def segment(folder, iterations, resumed_from=None):
-        run = seeded(0.0, 3)
-        run.update(path=folder.strip("/"), folder=folder, iterations=iterations)
-        if resumed_from:
-            run["config"]["ckpt_path"] = f"{resumed_from}/checkpoints/last.ckpt"
-        return run
-
-    first = segment("/o/s3/t1", 533)
-    second = segment("/o/s3/t2", 2839, "/o/s3/t1")
-    last = segment("/o/s3/t3", 4000, "/o/s3/t2")
-    copy_ = segment("/o/copy/t1", 1000)  # the same settings and seed, trained apart
-    for order in ([first, second, last, copy_], [copy_, last, second, first]):
-        (group,) = group_runs(order)
-        assert group.runs == [last]
-        lines = sorted(group.left_out)
-        assert lines[0] == (
-            "seed 3: `o/copy/t1` has the same configuration and seed as `o/s3/t3`, which was "
-            "kept (it trained 4,000 iterations, that one 1,000); they count as one seed"
-        )
-        assert lines[1:] == [  # one line for the resumed run, its segments oldest first
-            "seed 3: the resumed run `o/s3/t3` (4,000 iterations) was kept; it continues 2 "
-            "earlier segment(s) of itself: `t1` (533), `t2` (2,839)"
-        ]
-    # A run resumed in its own folder is one run, not a segment of itself.
-    in_place = segment("/o/s4/t1", 4000, "/o/s4/t1")
-    (group,) = group_runs([in_place])
-    assert group.runs == [in_place] and group.left_out == []
-    # A copy that was itself resumed from another folder is still a copy.
-    copy_["config"]["ckpt_path"] = "/o/elsewhere/checkpoints/last.ckpt"
-    (group,) = group_runs([last, second, first, copy_])
-    assert sum("same configuration" in line for line in group.left_out) == 1
-
-
-# --- where the page goes ----------------------------------------------------------------------
+    short["validations"] = {500: {80: 0.5}, 1000: {80: 0.45}}
+    single["validations"] = {1500: {80: 0.4}}
+    (group,) = group_runs([single, short])
+    assert group.runs == [single] and "`killed` (1,000)" in group.left_out[0]
+    assert list(single["validations"]) == [500, 1000, 1500]
 
 
 def test_the_page_goes_to_the_commands_folder_unless_out_is_given(tmp_path, monkeypatch):
@@ -409,7 +360,7 @@ def test_the_page_goes_to_the_commands_folder_unless_out_is_given(tmp_path, monk
 
     def evaluate_run(run, index, protocols, work):
         result = offset_result(0.0)
-        run["results"] = {s: {p: result for p in protocols} for s in ("best", "last")}
+        run["rows"] = rows_of({s: {p: result for p in protocols} for s in ("best", "last")})
 
     monkeypatch.setattr("src.report.evaluate_run", evaluate_run)
     run = make_run(tmp_path / "runs" / "li2018_h36m" / "t", summary={"iterations": 4000})

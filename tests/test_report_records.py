@@ -17,6 +17,7 @@ from tests.test_report import (
     offset_result,
     refusal,
     report_cfg,
+    rows_of,
 )
 
 
@@ -31,8 +32,9 @@ def evaluations(monkeypatch):
     def evaluate_run(run, index, protocols, work):
         evaluated.append(run["path"])
         result = offset_result(run["seed"] / 100)
-        result["provenance"]["checkpoint"] = str(run["checkpoints"]["best"])
-        run["results"] = {s: {p: result for p in protocols} for s in ("best", "last")}
+        rows = rows_of({s: {p: result for p in protocols} for s in ("best", "last")})
+        keys = {"experiment": run["config"]["run_name"], "dataset": run["config"]["data"]["name"]}
+        run["rows"] = rows.assign(run=run["path"], seed=run["seed"], iterations=4000, **keys)
 
     monkeypatch.setattr("src.report.evaluate_run", evaluate_run)
     return evaluated
@@ -94,8 +96,8 @@ def test_a_page_from_the_records_alone_is_the_page_from_the_runs(tmp_path, evalu
     assert without_record_notes(from_records) == without_record_notes(from_runs)
     assert seeds(from_records) == [("li2018_h36m", "1"), ("li2018_h36m", "2")]
     # The page says which rows came from a record, and when they were evaluated.
-    assert from_records.count("record li2018_h36m_seed") == 2
-    assert "record li2018_h36m_seed" not in from_runs
+    assert from_records.count("record li2018_h36m_h36m_") == 2
+    assert "record li2018_h36m_" not in from_runs
 
 
 def test_a_new_seed_joins_the_recorded_ones_and_only_it_is_evaluated(
@@ -120,11 +122,11 @@ def test_the_same_run_given_again_counts_once_and_replaces_its_record(
     assert len(evaluations) == 2  # the folder given wins over its record, and is evaluated
     assert len(list(records.glob("*.json"))) == 1
     assert seeds(page) == [("li2018_h36m", "1")]
-    assert "same configuration and seed" not in page  # not a copy of itself
+    assert "Runs counted once" not in page  # not a copy of itself
     # Given beside a run from elsewhere, it shows under a longer path: still its own record.
     other = seed_run(tmp_path / "elsewhere", 2)
     page = report(tmp_path, run, other, records=records)
-    assert "`runs/li2018_h36m_s1/t`" in page and "same configuration and seed" not in page
+    assert "`runs/li2018_h36m_s1/t`" in page and "Runs counted once" not in page
     assert seeds(page).count(("li2018_h36m", "1")) == 1 and len(list(records.glob("*.json"))) == 2
     # Another experiment of the same seed is another record, not a replacement.
     report(tmp_path, seed_run(tmp_path, 1, "li2018_h36m_C10"), records=records)
@@ -137,9 +139,7 @@ def test_records_name_no_machines_paths_and_hold_no_checkpoint(tmp_path, evaluat
     text = record.read_text()
     assert str(tmp_path) not in text
     data = json.loads(text)
-    assert "checkpoints" not in data
-    prov = data["results"]["best"]["srnn"]["provenance"]
-    assert prov["checkpoint"] == "li2018_h36m_s1/t/checkpoints/last.ckpt"
+    assert data["checkpoints"]["best"] == "li2018_h36m_s1/t/checkpoints/last.ckpt"
     assert data["evaluated"]["commit"] and data["seed"] == 1
 
 
@@ -152,14 +152,13 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     summary = {"iterations": 4000, "best_checkpoint": str(best)}
     make_run(runs / "t2", summary=summary, ckpt_path=str(first / "checkpoints" / "last.ckpt"))
     page = report(tmp_path, tmp_path / "out" / "li2018_h36m_s1", records=records)
-    # The stopped segment is named as the resumed run's, not as a copy of it.
-    assert "continues 1 earlier segment(s) of itself: `t1` (4,000)" in page
-    assert "same configuration" not in page
+    # The stopped segment counts once with the finished run that continues it.
+    (line,) = [x for x in page.splitlines() if x.startswith("**Runs counted once.**")]
+    assert "`li2018_h36m/t2` (4,000 iterations) kept; `li2018_h36m/t1` (4,000)" in line
     (record,) = records.glob("*.json")
     data = json.loads(record.read_text())
     assert data["path"] == "li2018_h36m/t2"
-    prov = data["results"]["best"]["srnn"]["provenance"]
-    assert prov["checkpoint"] == "li2018_h36m/t1/checkpoints/best-epoch001.ckpt"
+    assert data["checkpoints"]["best"] == "li2018_h36m/t1/checkpoints/best-epoch001.ckpt"
     # A segment outside the folders given (resumed under another paths.log_dir): named by its
     # file inside the run's folder, not by an absolute path.
     best = tmp_path / "elsewhere" / "checkpoints" / "best-epoch002.ckpt"
@@ -169,8 +168,8 @@ def test_a_resumed_runs_best_checkpoint_is_recorded_in_its_own_segments_folder(
     report(tmp_path, moved, records=records)
     (record,) = records.glob("*.json")
     assert str(tmp_path) not in record.read_text()
-    prov = json.loads(record.read_text())["results"]["best"]["srnn"]["provenance"]
-    assert prov["checkpoint"] == "li2018_h36m/t3/checkpoints/best-epoch002.ckpt"
+    checkpoint = json.loads(record.read_text())["checkpoints"]["best"]
+    assert checkpoint == "li2018_h36m/t3/checkpoints/best-epoch002.ckpt"
 
 
 @pytest.mark.parametrize(
@@ -189,7 +188,7 @@ def test_a_bad_record_is_refused_naming_the_file_and_the_fix(
     (record,) = records.glob("*.json")
     protocols = "protocols=[srnn,random]" if content == "NO_RANDOM" else "protocols=[srnn]"
     if content == "WRONG_FORMAT":
-        record.write_text(record.read_text().replace('"format": 1', '"format": 99'))
+        record.write_text(record.read_text().replace('"format": 2', '"format": 99'))
     elif content != "NO_RANDOM":
         record.write_text(content)
     text = refusal(capsys, report_cfg(tmp_path, f"records={records}", "datasets=[]", protocols))

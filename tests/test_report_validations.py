@@ -10,9 +10,8 @@ from src.reporting.frame import Results
 from src.reporting.groups import group_runs
 from src.reporting.page import build_page
 from src.reporting.published import published_for
-from src.reporting.runs import read_records, write_record
+from src.reporting.runs import read_records, validation_curve, write_record
 from src.reporting.tables import same_set_average
-from src.reporting.tensorboard import validation_curve
 from tests.test_report import ABSENT
 from tests.test_report_headline import EVALUATED, seeded
 

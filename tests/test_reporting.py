@@ -8,6 +8,7 @@ import math
 import os
 from pathlib import Path
 
+import pandas as pd
 import pytest
 import torch
 
@@ -21,14 +22,8 @@ from src.reporting.published import (
     published_frame,
     published_table,
 )
-from src.reporting.tables import (
-    AVERAGE,
-    result_table,
-    results_from_metric,
-    same_set_average,
-    table_markdown,
-    tables_csv,
-)
+from src.reporting.tables import AVERAGE, LONG, same_set_average
+from src.results import long_rows, result_table, results_from_metric, table_markdown, tables_csv
 
 PACKAGED_CSV = Path(__file__).parents[1] / "src" / "reporting" / "published_results.csv"
 # The 11 H3.6M actions this data copy can evaluate (the test files of the other 4 are missing).
@@ -373,15 +368,9 @@ def seed_runs(offsets) -> list[dict]:
             published=None,
         )
         config = {"run_name": "m", "seed": seed, "data": {"name": "synthetic"}}
-        result = {"provenance": {}, "tables": [table]}
-        runs.append(
-            {
-                "config": config,
-                "seed": seed,
-                "path": f"r{seed}",
-                "results": {"best": {"srnn": result}, "last": {"srnn": result}},
-            }
-        )
+        rows = [long_rows([table], protocol="srnn", checkpoint=s) for s in ("best", "last")]
+        rows = pd.concat(rows, ignore_index=True)
+        runs.append({"config": config, "seed": seed, "path": f"r{seed}", "rows": rows})
     return runs
 
 
@@ -416,9 +405,8 @@ def test_one_seed_has_no_spread():
 
 def test_seeds_evaluated_on_other_actions_are_refused():
     runs = seed_runs((0.0, 0.02))
-    table = runs[1]["results"]["best"]["srnn"]["tables"][0]
-    table["values"]["discussion"] = {"80": 0.1, "160": 0.1}
-    del table["absent"]["discussion"]
+    rows = runs[1]["rows"]
+    rows.loc[rows.action == "discussion", ["value", "absent"]] = [0.1, ""]
     with pytest.raises(ReportingError, match="seeds were evaluated on different actions"):
         Results(group_runs(runs))
 
@@ -448,3 +436,14 @@ def test_results_csv_of_eval_is_one_table_that_tells_the_metrics_apart(
             if (r["metric"], r["action"], r["ms"]) == (table["metric"], "walking", "80")
         ]
         assert [float(r["value"]) for r in walking] == [table["values"]["walking"]["80"]]
+    # results_long.csv: one row per metric, action and horizon, each value as results.json
+    # holds it, absent actions without a value (none on synthetic data).
+    long = pd.read_csv(tmp_path / "results_long.csv")
+    assert list(long.columns) == LONG
+    assert set(long.experiment) == {"zero_velocity"} and set(long.checkpoint) == {"-"}
+    assert set(long.protocol) == {result["provenance"]["eval_protocol"]}
+    for table in result["tables"]:
+        mine = long[long.metric == table["metric"]]
+        assert len(mine) == len(table["actions"]) * len(table["horizons_ms"])
+        for action, ms, value in mine[["action", "horizon", "value"]].itertuples(index=False):
+            assert value == table["values"][action][str(ms)]

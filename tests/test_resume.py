@@ -17,7 +17,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.reporting.tensorboard import validation_curve
+from src.reporting.runs import validation_curve
 from tests.conftest import ROOT
 from tests.objects import TINY_CONV
 

@@ -161,7 +161,7 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path, capsys):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from src.eval import evaluate
-    from src.reporting.tensorboard import validation_curve
+    from src.reporting.runs import validation_curve
     from src.train import train
     from tests.conftest import compose_config
 

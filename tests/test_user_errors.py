@@ -196,8 +196,7 @@ def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
 
 
 def test_eval_tables_of_synthetic_data_carry_no_published_numbers(synthetic_zero_velocity):
-    from src.reporting.tables import table_markdown
-    from src.results import build_tables
+    from src.results import build_tables, table_markdown
 
     dm, module, model_cfg, dataset = synthetic_zero_velocity
     assert dataset == "synthetic" and dm.dataset_name == "h36m"  # H3.6M format, not H3.6M

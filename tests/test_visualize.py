@@ -21,7 +21,7 @@ from src.plots import (
     strip_frames,
     window_rows,
 )
-from src.reporting.tables import result_table
+from src.results import result_table
 from src.visualize import select_window
 from tests.conftest import compose_config, run_module
 

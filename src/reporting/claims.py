@@ -10,6 +10,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 from src.reporting.frame import HORIZONS, SELECTIONS, Results, ms_list, signed
+from src.reporting.groups import settings
 from src.reporting.published import REFERENCES, published_frame
 from src.reporting.tables import AVERAGE, fmt, markdown
 
@@ -35,8 +36,8 @@ def claims() -> list[SimpleNamespace]:
 
 
 def _differences(a, b) -> list[str]:
-    """What two groups' configs differ in (run_name aside): `key a vs b`, sections in one only."""
-    ia, ib = ({k: v for k, v in g.ident.items() if k != "run_name"} for g in (a, b))
+    """What two groups differ in (budget, groups.SECTIONS): `key a vs b`, sections in one only."""
+    ia, ib = (settings(g.runs[0]["config"]) | {"iterations": str(g.iterations)} for g in (a, b))
     out = [f"{k} {ia[k]} vs {ib[k]}" for k in sorted(ia.keys() & ib.keys()) if ia[k] != ib[k]]
     for mine, theirs, who in ((ia, ib, a), (ib, ia, b)):
         sections = sorted({k.split(".")[0] for k in mine.keys() - theirs.keys()})
@@ -45,11 +46,11 @@ def _differences(a, b) -> list[str]:
 
 
 def _nearest(groups: list, run_name: str, near):
-    """The group of `run_name` on H3.6M whose settings differ least from `near`'s."""
+    """The group of `run_name` on H3.6M of `near`'s budget, its settings nearest `near`'s."""
     found = [g for g in groups if g.run_name == run_name and g.dataset == "h36m"]
     if not found or near is None:
         return max(found, key=lambda g: len(g.runs), default=None)
-    return min(found, key=lambda g: len(_differences(g, near)))
+    return min(found, key=lambda g: (g.iterations != near.iterations, len(_differences(g, near))))
 
 
 def _verdict(claim, delta: dict[int, float], spread: dict[int, float] | None) -> str:
@@ -102,15 +103,11 @@ def _c20_line(full, c20, protocols: list[str]) -> str:
         if (twin := twins.get(run["seed"])) is None:
             text += f" {full.label} has no seed {run['seed']} to check {c20.label}'s run against."
             continue
-        averages = lambda x, p, s: x["results"][s][p]["tables"][0]["average"]["values"]  # noqa: E731
-        largest = max(
-            abs(mine[ms] - theirs[ms])
-            for p in protocols
-            for s in SELECTIONS
-            for mine, theirs in [(averages(run, p, s), averages(twin, p, s))]
-            for ms in mine
-            if ms in theirs
+        keys = ["protocol", "checkpoint", "horizon"]
+        mine, theirs = (
+            x["rows"][x["rows"].metric == "euler"].groupby(keys).value.mean() for x in (run, twin)
         )
+        largest = (mine - theirs).abs().max()
         text += f" Its run (seed {run['seed']}) against {full.label}'s seed {run['seed']}: the "
         text += f"averages differ by at most {largest:.1e} rad"
         text += " (identical)." if largest == 0 else "."

@@ -9,7 +9,6 @@ that the protocol's deterministic zero-velocity does not give).
 from __future__ import annotations
 
 import contextlib
-import math
 from typing import NamedTuple
 
 import pandas as pd
@@ -97,16 +96,20 @@ class Results:
         self.baselines = [  # a baseline or a scored model: one run without checkpoints
             Group(b["label"], b["label"], b["dataset"], 0, [r], kind=b.get("kind", "baseline"))
             for b in baselines
-            for r in [b | {"seed": 0, "path": b["label"], "results": {"-": b["results"]}}]
+            for r in [b | {"seed": 0, "path": b["label"]}]
         ]
         self.entries = [*self.groups, *self.baselines]
         self._g = {e: k for k, e in enumerate(self.entries)}
-        self.files = {g: training_files(g, _euler(g)["actions"]) for g in self.groups}
+        self.files = {g: training_files(g, _actions(g)) for g in self.groups}
         self.untrained: dict[str, set[str]] = {}  # dataset -> actions without training files
         for g, files in self.files.items():
             gone = {a for a, (present, _) in files.items() if present == 0}
             self.untrained.setdefault(g.dataset, set()).update(gone)
-        self.frame = pd.DataFrame(self._rows(), columns=COLUMNS)
+        self.frame = pd.concat(
+            [self._rows(g, e) for g, e in enumerate(self.entries)]
+            or [pd.DataFrame(columns=COLUMNS)],
+            ignore_index=True,
+        )[COLUMNS]
         values = self.frame[self.frame.value.notna()]
         sets = values.groupby([*KEYS, "seed"]).action.agg(frozenset).groupby(level=KEYS).nunique()
         if (sets > 1).any():
@@ -133,21 +136,12 @@ class Results:
         for key, action, why in self.slip_cells[["key", "action", "why"]].itertuples(index=False):
             self.slips.setdefault(key, {}).setdefault(action, why)
 
-    def _rows(self):
-        for g, group in enumerate(self.entries):
-            gone = self.untrained.get(group.dataset, set())
-            for run in group.runs:
-                for checkpoint, by_protocol in run["results"].items():
-                    for protocol, result in by_protocol.items():
-                        key = (g, group.label, group.dataset, group.iterations, run["seed"])
-                        key += (run["path"], protocol, checkpoint)
-                        for t in result["tables"]:
-                            for action in t["actions"]:
-                                values = t["values"].get(action, {})
-                                tail = (t["absent"].get(action, ""), action not in gone)
-                                for ms in t["horizons_ms"]:
-                                    value = values.get(str(ms), math.nan)
-                                    yield (*key, t["metric"], action, int(ms), value, *tail)
+    def _rows(self, g: int, group: Group) -> pd.DataFrame:
+        gone = self.untrained.get(group.dataset, set())
+        frame = pd.concat([r["rows"].assign(seed=r["seed"], run=r["path"]) for r in group.runs])
+        keys = {"g": g, "experiment": group.label, "dataset": group.dataset}
+        frame = frame.assign(**keys, iterations=group.iterations)
+        return frame.assign(trained=~frame.action.isin(gone))
 
     def actions(self, group: Group, judged: bool = True) -> list[str]:
         """The evaluated actions (judged: those this copy has training files of)."""
@@ -184,8 +178,12 @@ class Results:
         """Its published references on its dataset, the model's own paper first."""
         ref = REFERENCES["experiment_published"].get(group.run_name, "-")
         if ref == "-":  # the one its evaluation printed beside ours
-            paper, _, method = (_euler(group).get("published_label") or "").partition(" ")
-            ref = {"paper": paper, "method": method}
+            run = group.runs[0]
+            ref = (
+                run["config"].get("model", {}).get("published")
+                if "config" in run
+                else run["published"]
+            )
         published, key = published_for(ref, group.dataset)
         refs = [Reference(key, published)] if published else []
         for also in REFERENCES["also_published"].get(f"{key} {group.dataset}", []):
@@ -337,7 +335,7 @@ class Results:
         return text + (f" {checked}." if checked else "")
 
 
-def _euler(group: Group) -> dict:
-    """The first run's first Euler table."""
-    first = next(iter(next(iter(group.runs[0]["results"].values())).values()))
-    return next(t for t in first["tables"] if t["metric"] == "euler")
+def _actions(group: Group) -> list[str]:
+    """The first run's actions, absent ones too."""
+    rows = group.runs[0]["rows"]
+    return list(dict.fromkeys(rows.action[rows.metric == "euler"]))

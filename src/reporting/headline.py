@@ -82,8 +82,6 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
     judged = verdicts(results, groups, protocol, targets)
     for k, group in enumerate(groups):
         label, n, budget = group.label, str(len(group.runs)), f"{group.iterations:,}"
-        if settings := ", ".join(f"{a}={v}" for a, v in group.settings.items()):
-            label += mark(f"{label}: {settings}.")
         everything, judged_actions = results.actions(group, False), results.actions(group)
         if untrained := results.untrained_actions(group):
             label += mark(

@@ -11,18 +11,18 @@ import os
 import re
 from pathlib import Path
 
+import pandas as pd
 import yaml
 
 from src.lit.factory import PROJECT_ROOT, ConfigError
-from src.reporting.groups import identity
-from src.reporting.tables import read_results
-from src.reporting.tensorboard import validation_curve
+from src.reporting.tables import LONG, read_long, read_results
 
+AVERAGE_TAG = "val_euler/average/"  # the TensorBoard tags of the validations
 ARCHIVES = {"h36m": "h3.6m.zip", "cmu": "cmu_mocap.zip"}
-RECORD_FORMAT = 1
-RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations", "results")
+RECORD_FORMAT = 2
+RECORD_KEYS = ("path", "config", "seed", "iterations_of", "iterations")
 KEPT = "finished wall_time_s train_time_s commit device missing_files train_missing_files "
-KEPT += "archive_sha256 validations"
+KEPT += "archive_sha256"
 
 
 def _yaml(path: Path) -> dict:
@@ -96,6 +96,24 @@ def checkpoint_facts(path: Path) -> tuple[int | None, list[str]]:
     return ckpt.get("global_step"), missing
 
 
+def validation_curve(run: Path) -> dict[int, dict[int, float]]:
+    """{iterations done: {ms: average Euler error}} at each validation, from TensorBoard ({}
+    without): logged at the step of the iteration before it (from 0), so after `step + 1`."""
+    folder = Path(run) / "tensorboard"
+    if not any(folder.glob("events.out.tfevents.*")):
+        return {}
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(folder), size_guidance={"scalars": 0}).Reload()
+    curve: dict[int, dict[int, float]] = {}
+    for tag in events.Tags()["scalars"]:
+        if tag.startswith(AVERAGE_TAG) and tag.endswith("ms"):
+            ms = int(tag[len(AVERAGE_TAG) : -2])
+            for event in events.Scalars(tag):  # a step logged twice: the later value
+                curve.setdefault(event.step + 1, {})[ms] = float(event.value)
+    return dict(sorted(curve.items()))
+
+
 def load_run(path: Path, root: Path) -> dict:
     config, summary = _yaml(path / "config.yaml"), _yaml(path / "summary.yaml")
     checkpoints, notes = find_checkpoints(path)
@@ -127,34 +145,32 @@ def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list
     folders = discover_runs(paths)
     root = display_root(folders) if folders else PROJECT_ROOT
     runs = [load_run(folder, root) for folder in folders]
-    given = {(record_name(r), Path(r["path"]).parts) for r in runs}
-
-    def same_run(record: dict) -> bool:  # shown paths end alike: each is relative to its root
-        mine = Path(record["path"]).parts[::-1]
-        ends = lambda theirs: all(a == b for a, b in zip(mine, theirs[::-1], strict=False))  # noqa: E731
-        return any(name == record_name(record) and ends(theirs) for name, theirs in given)
-
     recorded = read_records(records, protocols) if records else []
-    return runs + [r for r in recorded if not same_run(r)]
+
+    def same(
+        run: dict, record: dict
+    ) -> bool:  # shown paths end alike: each is relative to its root
+        ends = zip(Path(run["path"]).parts[::-1], Path(record["path"]).parts[::-1], strict=False)
+        return record_name(run) == record_name(record) and all(a == b for a, b in ends)
+
+    for run in runs:  # a run given again is written over its record
+        run["record"] = next((r["record"] for r in recorded if same(run, r)), None)
+    return runs + [r for r in recorded if not any(same(run, r) for run in runs)]
 
 
 def record_name(run: dict) -> str:
+    """<run_name>_<dataset>_<iterations planned>_seed<seed>: a row's seed (groups.py)."""
     config = run["config"]
-    ident = [config.get("run_name"), config["data"]["name"], identity(config)]
-    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:10]
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(config.get("run_name", "run")))
-    return f"{name}_seed{run['seed']}_{digest}.json"
+    name = f"{config.get('run_name', 'run')}_{config['data']['name']}_{config.get('iterations')}"
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{name}_seed{run['seed']}")
 
 
-def _portable(value, run_path: str, shown: dict[str, str]):
-    """`value` without absolute paths: a checkpoint as shown, another by its last part."""
+def _portable(value):
+    """`value` without absolute paths: each by its last part."""
     if isinstance(value, dict):
-        out = {k: _portable(v, run_path, shown) for k, v in value.items()}
-        if isinstance(ckpt := value.get("checkpoint"), str):
-            out["checkpoint"] = shown.get(ckpt, f"{run_path}/checkpoints/{Path(ckpt).name}")
-        return out
+        return {k: _portable(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_portable(v, run_path, shown) for v in value]
+        return [_portable(v) for v in value]
     if isinstance(value, str):
         key, eq, path = value.rpartition("=")
         if Path(path).is_absolute():
@@ -162,18 +178,37 @@ def _portable(value, run_path: str, shown: dict[str, str]):
     return value
 
 
+def validation_rows(run: dict) -> pd.DataFrame:
+    """The run's validations as LONG rows: checkpoint "validation", action "average"."""
+    config, protocol = run["config"], run["config"]["data"].get("eval_protocol", "srnn")
+    keys = (run["path"], config.get("run_name"), config["data"]["name"], run["seed"])
+    rows = [
+        (*keys, i, protocol, "validation", "euler", "average", ms, value, "")
+        for i, errors in sorted((run.get("validations") or {}).items())
+        for ms, value in sorted(errors.items())
+    ]
+    return pd.DataFrame(rows, columns=LONG)
+
+
 def write_record(run: dict, folder: Path, commit: str, date: str) -> Path:
+    """<name>.csv (the run's LONG rows, its validations too) and <name>.json (provenance)."""
     shown = run.get("shown_checkpoints", {})
     record = {
         "format": RECORD_FORMAT,
         "evaluated": {"commit": commit, "date": date},
-        **{k: _portable(run[k], run["path"], shown) for k in RECORD_KEYS},
+        **{k: _portable(run[k]) for k in RECORD_KEYS},
+        "checkpoints": {  # as shown where under the run folders' root, else in its own folder
+            s: shown.get(str(p), f"{run['path']}/checkpoints/{Path(p).name}")
+            for s, p in run.get("checkpoints", {}).items()
+        },
         "notes": run.get("notes", []),
         **{k: run[k] for k in KEPT.split() if k in run},
     }
-    path = Path(folder) / record_name(run)
-    path.write_text(json.dumps(record, indent=1) + "\n")
-    return path
+    path = Path(folder) / (run.get("record") or record_name(run))
+    rows = pd.concat([run["rows"], validation_rows(run)], ignore_index=True)
+    rows.to_csv(path.with_suffix(".csv"), index=False)
+    path.with_suffix(".json").write_text(json.dumps(record, indent=1) + "\n")
+    return path.with_suffix(".json")
 
 
 def read_records(folder: Path, protocols: list[str]) -> list[dict]:
@@ -199,21 +234,26 @@ def read_records(folder: Path, protocols: list[str]) -> list[dict]:
                 f"{path} is a record of format {record['format']}, this version reads format "
                 f"{RECORD_FORMAT}: evaluate its run again"
             )
+        if not (table := path.with_suffix(".csv")).is_file():
+            raise ConfigError(f"{path} has no {table.name} (its rows): restore it or remove both")
+        rows = read_long(table)
         for selection in ("best", "last"):
-            have = record["results"].get(selection, {})
+            have = set(rows.protocol[rows.checkpoint == selection])
             if missing := [p for p in protocols if p not in have]:
                 raise ConfigError(
                     f"{path} has no {selection}-checkpoint results for protocol "
-                    f"{', '.join(missing)}: give protocols=[{','.join(have)}], or evaluate its "
-                    "run folder again"
+                    f"{', '.join(missing)}: give protocols=[{','.join(sorted(have))}], or "
+                    "evaluate its run folder again"
                 )
         when = record["evaluated"]
         record["notes"] += [f"record {path.name}: evaluated at {when['commit']} on {when['date']}"]
-        record["validations"] = {  # JSON's keys are text: iterations and horizons again
-            int(i): {int(ms): v for ms, v in e.items()}
-            for i, e in (record.get("validations") or {}).items()
+        curve = rows[rows.checkpoint == "validation"]
+        record["validations"] = {
+            int(i): {int(ms): v for ms, v in zip(c.horizon, c.value, strict=True)}
+            for i, c in curve.groupby("iterations")
         }
-        runs.append({**record, "recorded": True})
+        record["rows"] = rows[rows.checkpoint != "validation"].reset_index(drop=True)
+        runs.append({**record, "recorded": True, "record": path.stem})
     return runs
 
 
@@ -242,7 +282,9 @@ def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
             {"label": label, "dataset": dataset, "kind": "predictions", "results": {}},
         )
         entry.update(commit=prov.get("commit", "-"), missing_files=prov.get("missing_files", []))
-        entry["results"][prov.get("eval_protocol", "srnn")] = result
+        entry.update(published=prov.get("published"))
+        rows = read_long(Path(path).with_name("results_long.csv"))
+        entry["results"][prov.get("eval_protocol", "srnn")] = rows.assign(checkpoint="-")
     for entry in entries.values():
         if lacking := [p for p in protocols if p not in entry["results"]]:
             raise ConfigError(
@@ -250,4 +292,6 @@ def scored_entries(paths: list[Path], protocols: list[str]) -> list[dict]:
                 f"{', '.join(lacking)}: score its predictions with protocol={lacking[0]} too, or "
                 f"give protocols=[{','.join(entry['results'])}]"
             )
+    for entry in entries.values():
+        entry["rows"] = pd.concat(entry.pop("results").values(), ignore_index=True)
     return list(entries.values())
