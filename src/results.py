@@ -244,7 +244,13 @@ def evaluate(cfg: DictConfig) -> dict:
     (out_dir / "results.csv").write_text(tables_csv(tables))
     ckpt = Path(cfg.ckpt_path) if cfg.ckpt_path else None
     keys = {"run": str(ckpt.parent.parent) if ckpt else run_name, "experiment": run_name}
-    keys |= {"dataset": dataset, "seed": module.run_info["config"].get("seed") if ckpt else None}
+    # A checkpoint's seed is its data config's (the run's `seed`), its iterations the Trainer's.
+    if ckpt:
+        keys |= {
+            "seed": module.run_info["config"]["data"].get("seed"),
+            "iterations": module.iterations,
+        }
+    keys |= {"dataset": dataset}
     keys |= {"protocol": dm.eval_protocol, "checkpoint": ckpt.name if ckpt else "-"}
     long_rows(tables, **keys).to_csv(out_dir / "results_long.csv", index=False)
     result = {"provenance": provenance, "tables": tables}

@@ -5,6 +5,7 @@ import copy
 
 import hydra
 import lightning as L
+import pandas as pd
 import pytest
 import torch
 import yaml
@@ -206,6 +207,9 @@ def test_short_run_checkpoints_logs_and_evaluates(train_cfg, tmp_path, capsys):
     euler = result["tables"][0]
     assert euler["metric"] == "euler"
     assert (tmp_path / "eval" / "results.md").exists()
+    # Its long rows say whose checkpoint: the run's seed and the iterations it had trained.
+    rows = pd.read_csv(tmp_path / "eval" / "results_long.csv")
+    assert set(rows.seed) == {cfg.seed} and set(rows.iterations) == {cfg.iterations}
 
 
 @pytest.mark.parametrize(

@@ -93,6 +93,7 @@ def load_trained(path: str | Path, cfg: DictConfig | None = None) -> MotionPredi
             f"{' '.join(str(err.__cause__ or err).split())[:300]}. It was written by an "
             "incompatible version."
         ) from err
+    module.iterations = int(ckpt.get("global_step", 0))  # trained, for the evaluation's rows
     return module.eval()
 
 
