@@ -8,7 +8,6 @@ that the protocol's deterministic zero-velocity does not give).
 
 from __future__ import annotations
 
-import contextlib
 from typing import NamedTuple
 
 import pandas as pd
@@ -117,14 +116,8 @@ class Results:
                 f"{self.entries[sets[sets > 1].index[0][0]].label}: its seeds were evaluated on "
                 "different actions; only runs of one configuration on one data copy are averaged"
             )
-        euler = values[values.metric == "euler"]
-        self.evaluated = {g: list(dict.fromkeys(f.action)) for g, f in euler.groupby("g")}
-        self._seeds = {  # judged -> each seed's average over the (judged) actions
-            judged: values[values.trained | (not judged)]
-            .groupby([*KEYS, "seed", "horizon"])
-            .value.mean()
-            for judged in (False, True)
-        }
+        self.values = values
+        self.evaluated = values[values.metric == "euler"].groupby("g").action.unique().map(list)
         self._refs = {e: self._references(e) for e in self.entries}
         self.zero_cells = self._zero_velocity_cells()
         self.slip_cells = self.zero_cells[self.zero_cells.slip.astype(bool)]
@@ -153,25 +146,31 @@ class Results:
         gone = self.untrained.get(group.dataset, set())
         return [a for a in self.actions(group, judged=False) if a in gone]
 
-    def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
-        """Each seed's average over the (judged) actions, by horizon; None where there is none."""
-        key = (self._g[group], protocol, checkpoint, metric)
-        with contextlib.suppress(KeyError):
-            return self._seeds[judged].loc[key].groupby(level="horizon")
+    def seed_means(self, entry, protocol, checkpoint, metric="euler", judged=False, actions=None):
+        """Each seed's average over the (judged) actions, or over exactly `actions` (empty unless
+        every one was evaluated), indexed by seed and horizon."""
+        f = self.values
+        f = f[(f.g == self._g[entry]) & (f.protocol == protocol) & (f.checkpoint == checkpoint)]
+        f = f[(f.metric == metric) & (f.trained | (not judged))]
+        if actions is not None:
+            f = f[f.action.isin(actions)]
+            f = f if len(actions) and set(f.action) == set(actions) else f.iloc[:0]
+        return f.groupby(["seed", "horizon"]).value.mean().groupby(level="horizon")
 
     def average(self, group, protocol, checkpoint, metric="euler", judged=False) -> dict:
         """{ms: (mean, std, n)} over the seeds; {} where there is none."""
-        by_ms = self._by_horizon(group, protocol, checkpoint, metric, judged)
-        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms or ()}
+        by_ms = self.seed_means(group, protocol, checkpoint, metric, judged)
+        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms}
 
-    def means(self, group, protocol, checkpoint, judged=False) -> dict[int, float]:
-        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
-        return {int(ms): v.mean() for ms, v in by_ms or ()}
+    def means(self, group, protocol, checkpoint, judged=False, actions=None) -> dict[int, float]:
+        """{ms: the mean over the seeds}; over `actions`: {} unless every one was evaluated."""
+        by_ms = self.seed_means(group, protocol, checkpoint, judged=judged, actions=actions)
+        return {int(ms): v for ms, v in by_ms.mean().items()}
 
     def spread(self, group, protocol, checkpoint, judged=False) -> dict[int, float] | None:
         """The largest minus the smallest of the seeds' Euler averages; None for one seed."""
-        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
-        if by_ms is not None and by_ms.size().max() > 1:
+        by_ms = self.seed_means(group, protocol, checkpoint, judged=judged)
+        if by_ms.ngroups and by_ms.size().max() > 1:
             return (by_ms.max() - by_ms.min()).to_dict()
 
     def _references(self, group: Group) -> list[Reference]:
@@ -227,26 +226,16 @@ class Results:
         actions = self.clean_actions(group, reference, judged)
         return same_set_average(reference.published, actions, HORIZONS)
 
-    def mean_over(self, entry: Group, protocol: str, checkpoint: str, actions) -> dict:
-        """{ms: mean over the seeds of each seed's Euler average over `actions`}; {} unless
-        every one of them was evaluated."""
-        f = self.frame
-        f = f[(f.g == self._g[entry]) & (f.protocol == protocol) & (f.checkpoint == checkpoint)]
-        f = f[(f.metric == "euler") & f.action.isin(actions)].dropna(subset=["value"])
-        if not len(actions) or set(f.action) != set(actions):
-            return {}
-        return f.groupby(["seed", "horizon"]).value.mean().groupby(level="horizon").mean().to_dict()
-
     def no_better_than_zero(self, group: Group, protocol: str) -> dict[str, list[int]]:
         """{checkpoint: horizons where, as printed, ours is not below zero-velocity's average over
         the same judged actions}; {} without a zero-velocity evaluation of them."""
         zeros = [b for b in self.baselines if (b.label, b.dataset) == (ZERO, group.dataset)]
         actions = self.actions(group)
-        if not zeros or not (zero := self.mean_over(zeros[0], protocol, "-", actions)):
+        if not zeros or not (zero := self.means(zeros[0], protocol, "-", actions=actions)):
             return {}
         out = {}
         for s in SELECTIONS:
-            ours = self.mean_over(group, protocol, s, actions)
+            ours = self.means(group, protocol, s, actions=actions)
             out[s] = [ms for ms in HORIZONS if ms in ours and ms in zero and
                       round(ours[ms], 2) >= round(zero[ms], 2)]  # fmt: skip
         return out
@@ -254,7 +243,7 @@ class Results:
     def ours_same_set(self, group: Group, reference: Reference, protocol: str, checkpoint: str):
         """{ms: ours} over the reference's same-set actions (slips left out on both sides)."""
         actions = self.clean_actions(group, reference)
-        return self.mean_over(group, protocol, checkpoint, actions)
+        return self.means(group, protocol, checkpoint, actions=actions)
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
         """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""
