@@ -72,6 +72,12 @@ def stat(mean: float, std: float, n: int, decimals: int = 2) -> str:
     return f"{mean:.{decimals}f}" + (f" ± {std:.{decimals}f}" if n > 1 else "")
 
 
+def long_values(published: dict) -> pd.DataFrame:
+    """{action: {ms: value}} as rows: action, ms, published."""
+    cells = [(a, ms, v) for a, by_ms in published.items() for ms, v in by_ms.items()]
+    return pd.DataFrame(cells, columns=["action", "ms", "published"])
+
+
 def training_files(group: Group, actions: list[str]) -> dict[str, tuple[int, int]]:
     """{action: (present, expected)} training files of the group's data copy."""
     from src.data.layout import H36M_TRAIN_SUBJECTS, cmu_files, h36m_files
@@ -120,7 +126,7 @@ class Results:
         self.evaluated = values[values.metric == "euler"].groupby("g").action.unique().map(list)
         self._refs = {e: self._references(e) for e in self.entries}
         self.zero_cells = self._zero_velocity_cells()
-        self.slip_cells = self.zero_cells[self.zero_cells.slip.astype(bool)]
+        self.slip_cells = self.zero_cells[self.zero_cells.slip]
         self.slips: dict[str, dict[str, str]] = {}  # reference key -> {action: why}
         for e in self.entries:
             for ref in self._refs[e]:
@@ -197,19 +203,20 @@ class Results:
         """Each published zero-velocity cell of an action evaluated here on the papers' windows
         (SRNN seeds) beside ours: key, dataset, action, ms, published, ours, slip (beyond
         rounding), why."""
-        rows = []
-        f = self.frame[(self.frame.protocol == "srnn") & (self.frame.metric == "euler")]
-        for zero in (b for b in self.baselines if b.label == ZERO):
-            cells = f[f.g == self._g[zero]].dropna(subset=["value"])
-            for ref in (r for r in self._refs[zero] if r.key.endswith(f" {ZERO}")):
-                for action, ms, ours in cells[["action", "horizon", "value"]].itertuples(False):
-                    if (printed := ref.published.get(action, {}).get(ms)) is None:
-                        continue
-                    why = f"published {printed:.2f} at {ms} ms, the protocol gives {ours:.3f}"
-                    slip = abs(ours - printed) > ROUNDING
-                    rows.append((ref.key, zero.dataset, action, ms, printed, ours, slip, why))
-        columns = ["key", "dataset", "action", "ms", "published", "ours", "slip", "why"]
-        return pd.DataFrame(rows, columns=columns)
+        f = self.values[(self.values.protocol == "srnn") & (self.values.metric == "euler")]
+        f = f.rename(columns={"horizon": "ms", "value": "ours"})
+        cells = [
+            f[f.g == self._g[zero]].merge(long_values(ref.published), on=["action", "ms"])
+            .assign(key=ref.key)
+            for zero in self.baselines if zero.label == ZERO
+            for ref in self._refs[zero] if ref.key.endswith(f" {ZERO}")
+        ]  # fmt: skip
+        empty = long_values({}).assign(ours=0.0, key="", dataset="").astype({"ms": int})
+        c = pd.concat([empty, *cells], ignore_index=True)
+        c["why"] = [f"published {p:.2f} at {ms} ms, the protocol gives {o:.3f}"
+                    for p, ms, o in zip(c.published, c.ms, c.ours, strict=True)]  # fmt: skip
+        c["slip"] = (c.ours - c.published).abs() > ROUNDING
+        return c[["key", "dataset", "action", "ms", "published", "ours", "slip", "why"]]
 
     def slips_in(self, reference: Reference, actions: list[str]) -> dict[str, str]:
         """{action: why} of the `actions` whose published values under `reference` are slips."""

@@ -9,6 +9,8 @@ import itertools
 import os
 from pathlib import Path
 
+import pandas as pd
+
 import src.reporting.frame as fr
 import src.reporting.headline as hl
 from src.lit.factory import ConfigError
@@ -238,17 +240,17 @@ def data_lines(results: Results) -> list[str]:
 
 
 def published_csv(results: Results) -> str:
-    """Every published cell of the references on the page, and why it is a slip ('' if not)."""
+    """Every published cell of the references on the page, zero-velocity's beside it as the
+    protocol gives it on this data, and why it is a slip: found by the protocol, else its
+    action's known slip (references.json); '' if not."""
     keys = {r.key for e in results.entries for r in results.references(e)}
-    f = published_frame()
-    f = f[(f.paper + " " + f.method).isin(keys)].copy()
-    found = {(c.key, c.dataset, c.action, c.ms): c.why for c in results.slip_cells.itertuples()}
-    ours = {(c.key, c.dataset, c.action, c.ms): c.ours for c in results.zero_cells.itertuples()}
-    keys = list(zip(f.paper + " " + f.method, f.dataset, f.action, f.ms, strict=True))
-    f["ours"] = [ours.get(k) for k in keys]  # zero-velocity's, the protocol's on this data
-    # A cell found by the protocol, else its action's known slip (references.json).
-    f["slip"] = [found.get(k) or results.slips.get(k[0], {}).get(k[2], "") for k in keys]
-    return f.to_csv(index=False, float_format="%.4g")
+    f = published_frame().assign(key=lambda f: f.paper + " " + f.method)
+    zero = results.zero_cells.assign(found=lambda z: z.why.where(z.slip))
+    on = ["key", "dataset", "action", "ms"]
+    f = f[f.key.isin(keys)].merge(zero[[*on, "ours", "found"]], how="left", on=on)
+    known = [results.slips.get(k, {}).get(a, "") for k, a in zip(f.key, f.action, strict=True)]
+    f["slip"] = f.pop("found").astype(object).fillna(pd.Series(known, dtype=object))
+    return f.drop(columns="key").to_csv(index=False, float_format="%.4g")
 
 
 def build_page(
