@@ -90,31 +90,27 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
                 f"published one likewise), shown in the per-action tables and the rows 'all "
                 f"{len(everything)} actions'."
             )
-        j, verdict = judged.get(group), "-"
-        if j is not None and j.status == "not judged":
+        j, verdict = judged[group], "-"
+        if j.status == "not judged":
             verdict = f"not judged ({j.why})"
-        elif j is not None and j.status != "-":
+        elif j.status != "-":
             ref = j.reference
-            verdict = j.status if ref is None else f"**{j.status}**, judged against {ref.name}"
             others = [r for r in results.references(group) if r is not ref]
-            if ref is not None and (others or "left out" in j.why):
-                also = "; ".join(f"{r.name}" + (f" ({r.about})" if r.about else "") for r in others)
+            verdict = f"**{j.status}**, judged against {ref.name}"
+            if others or "left out" in j.why:
+                also = "; ".join(r.name + (f" ({r.about})" if r.about else "") for r in others)
                 also = f"; second reference: {also}" * bool(also)
                 verdict += mark(f"{group.label}: judged against {ref.name} ({j.why}){also}.")
         if (no_better := results.no_better_than_zero(group, protocol)) and any(no_better.values()):
             verdict += f"; no better than zero-velocity at {where(no_better)}"
-        for all_actions in (False, True) if untrained else (False,):
-            for s in SELECTIONS:
-                first = (label, group.dataset) if (s, all_actions) == ("best", False) else ("", "")
-                # The set named as training's TensorBoard and src.eval name it.
-                which = (
-                    f"all {len(everything)} actions"
-                    if all_actions
-                    else (f"{len(judged_actions)} trained actions")
-                )
-                what = f"ours, {s}" + f", {which}" * bool(untrained)
-                cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
-                rows.append([*first, budget, what, n, *cells, "" if first[0] == "" else verdict])
+        # The sets named as training's TensorBoard and src.eval name them.
+        sets = [f"{len(judged_actions)} trained actions", f"all {len(everything)} actions"]
+        ours = [(a, s) for a in ((False, True) if untrained else (False,)) for s in SELECTIONS]
+        for i, (all_actions, s) in enumerate(ours):
+            what = f"ours, {s}" + f", {sets[all_actions]}" * bool(untrained)
+            cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
+            first = [label, group.dataset] if i == 0 else ["", ""]
+            rows.append([*first, budget, what, n, *cells, "" if i else verdict])
         for ref in results.references(group):
             name, cells, text = _reference_row(
                 results, group, ref, protocol, targets.get(group.dataset)
