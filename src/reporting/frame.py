@@ -291,15 +291,12 @@ class Results:
 
     def validation_means(self, group: Group, protocol: str) -> dict[int, dict[int, float]]:
         """{iterations: {ms: mean over the seeds}} at the validations every seed made, else {}."""
-        curves = [r.get("validations") or {} for r in group.runs]
+        curves = [pd.DataFrame(r.get("validations") or {}).T.stack() for r in group.runs]
         protocols = {r["config"]["data"].get("eval_protocol", "srnn") for r in group.runs}
-        if not all(curves) or protocols != {protocol}:
+        if not all(len(c) for c in curves) or protocols != {protocol}:
             return {}
-        out = {}
-        for i in sorted(set.intersection(*(set(c) for c in curves))):
-            shared = [ms for ms in curves[0][i] if all(ms in c[i] for c in curves)]
-            out[i] = {ms: sum(c[i][ms] for c in curves) / len(curves) for ms in shared}
-        return out
+        means = pd.concat(curves, axis=1).dropna().mean(axis=1).sort_index()
+        return {int(i): {int(ms): v for (_, ms), v in e.items()} for i, e in means.groupby(level=0)}
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
         """Where a judged row misses most, the actions that carry it, the seed spread beside it."""
