@@ -247,20 +247,20 @@ class Results:
                       round(ours[ms], 2) >= round(zero[ms], 2)]  # fmt: skip
         return out
 
-    def ours_same_set(self, group: Group, reference: Reference, protocol: str, checkpoint: str):
-        """{ms: ours} over the reference's same-set actions (slips left out on both sides)."""
+    def gaps(self, group: Group, reference: Reference, protocol: str) -> pd.DataFrame:
+        """At each horizon of the reference's same-set average (`same`): ours over its actions
+        (best, last; slips left out on both sides), ours minus it as printed ("best gap", ...)."""
         actions = self.clean_actions(group, reference)
-        return self.means(group, protocol, checkpoint, actions=actions)
+        ours = {s: self.means(group, protocol, s, actions=actions) for s in SELECTIONS}
+        t = pd.DataFrame({"same": self.same_set(group, reference), **ours}).dropna(subset="same")
+        for s in SELECTIONS:
+            t[f"{s} gap"] = [printed_gap(o, p) for o, p in zip(t[s], t.same, strict=True)]
+        return t
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
         """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""
-        same, out = self.same_set(group, reference), {}
-        for s in SELECTIONS:
-            ours = self.ours_same_set(group, reference, protocol, s)
-            out[s] = [
-                ms for ms in same if ms in ours and abs(printed_gap(ours[ms], same[ms])) > target
-            ]
-        return out
+        t = self.gaps(group, reference, protocol)
+        return {s: [int(ms) for ms in t.index[t[f"{s} gap"].abs() > target]] for s in SELECTIONS}
 
     def reference(self, group: Group) -> tuple[Reference | None, str]:
         """The reference a group is judged against (its own paper's, unless that one has no
@@ -300,13 +300,8 @@ class Results:
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
         """Where a judged row misses most, the actions that carry it, the seed spread beside it."""
-        ref = judgement.reference
-        same = self.same_set(group, ref)
-        gaps = {
-            (s, ms): printed_gap(self.ours_same_set(group, ref, protocol, s)[ms], same[ms])
-            for s, horizons in judgement.missed.items()
-            for ms in horizons
-        }
+        ref, t = judgement.reference, self.gaps(group, judgement.reference, protocol)
+        gaps = {(s, ms): t.at[ms, f"{s} gap"] for s, hs in judgement.missed.items() for ms in hs}
         (selection, ms), gap = max(gaps.items(), key=lambda kv: abs(kv[1]))
         f = self.frame
         f = f[(f.g == self._g[group]) & (f.protocol == protocol) & (f.metric == "euler")]
@@ -316,8 +311,8 @@ class Results:
         top = ", ".join(f"{a} {signed(v)}" for a, v in sorted(top, key=lambda kv: -abs(kv[1]))[:3])
         text = (
             f"{group.label} ({group.iterations:,} iterations) misses most at {ms} ms ({selection} "
-            f"checkpoint): {signed(gap)} against {ref.name}'s {same[ms]:.2f}, the mean of the "
-            f"{len(actions)} actions' gaps, the largest {top}."
+            f"checkpoint): {signed(gap)} against {ref.name}'s {t.at[ms, 'same']:.2f}, the mean of "
+            f"the {len(actions)} actions' gaps, the largest {top}."
         )
         if (spread := self.spread(group, protocol, selection, judged=True)) is not None:
             size = "larger" if spread[ms] > abs(gap) else "smaller"

@@ -53,19 +53,17 @@ def where(horizons: dict[str, list[int]]) -> str:
 
 def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
     """(label, cells, verdict): the same-set average, ours minus it, where beyond the target."""
-    actions, same = results.actions(group), results.same_set(group, ref)
-    ours = {s: results.ours_same_set(group, ref, protocol, s) for s in SELECTIONS}
-    if not same:
+    actions, t = results.actions(group), results.gaps(group, ref, protocol)
+    if t.empty:
         cells = [fmt(ref.published.get(AVERAGE, {}).get(ms)) for ms in HORIZONS]
         return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
     name = f"{ref.name}, {len(actions)} actions"
     if slips := results.slips_in(ref, actions):
         kept = len(actions) - len(slips)
         name = f"{ref.name}, {kept} actions (slips left out: {', '.join(slips)})"
-    gaps = {
-        ms: [fr.signed(fr.printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS] for ms in same
-    }
-    cells = [f"{same[ms]:.2f} ({', '.join(gaps[ms])})" if ms in same else "-" for ms in HORIZONS]
+    gaps = t[["same", "best gap", "last gap"]].itertuples()
+    shown = {ms: f"{same:.2f} ({fr.signed(b)}, {fr.signed(last)})" for ms, same, b, last in gaps}
+    cells = [shown.get(ms, "-") for ms in HORIZONS]
     missed = results.missed(group, protocol, ref, target) if target is not None else {}
     if target is None or not any(missed.values()):
         return name, cells, "-" if target is None else f"within {target:.2f}"
