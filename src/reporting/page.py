@@ -93,24 +93,21 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
     """Each group's per-action mean, std (n - 1) and published value; why an action is absent."""
     f = results.frame[(results.frame.protocol == protocol) & (results.frame.metric == metric)]
     keys = ["g", "checkpoint", "action"]
-    stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std"])
     rows = f.groupby(keys, sort=False)
     out = rows.seed.nunique().rename("n").to_frame()
     out["note"] = rows.absent.first().where(
         rows.absent.first().astype(bool) | rows.trained.first(), "no training files in this copy"
     )
-    for ms in HORIZONS:
-        if ms in stats.index.get_level_values("horizon"):
-            cells = stats.xs(ms, level="horizon")
-            out[f"{ms} ms"], out[f"{ms} ms std"] = cells["mean"], cells["std"]
+    stats = f.groupby([*keys, "horizon"]).value.agg(["mean", "std"]).unstack("horizon")
+    for ms in (ms for ms in HORIZONS if ms in stats.columns.get_level_values("horizon")):
+        out[f"{ms} ms"], out[f"{ms} ms std"] = stats["mean", ms], stats["std", ms]
     out = out.reset_index()
-    if metric == "euler":
-        refs = [results.references(results.entries[g])[:1] for g in out.g]
-        for ms in HORIZONS:
-            pub = zip(refs, out.action, strict=True)
-            out[f"{ms} ms published"] = [
-                r[0].published.get(a, {}).get(ms) if r else None for r, a in pub
-            ]
+    first = {
+        g: r[0].published for g, e in enumerate(results.entries) if (r := results.references(e))
+    }
+    for ms in HORIZONS if metric == "euler" else ():
+        pairs = zip(out.g, out.action, strict=True)
+        out[f"{ms} ms published"] = [first.get(g, {}).get(a, {}).get(ms) for g, a in pairs]
     groups = [results.entries[g] for g in out.pop("g")]
     out.insert(0, "iterations", [g.iterations if g.kind == "trained" else "" for g in groups])
     out.insert(0, "data", [g.dataset for g in groups])
