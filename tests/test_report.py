@@ -17,7 +17,7 @@ import yaml
 from src.lit.factory import ConfigError
 from src.report import evaluate_run, main
 from src.reporting.frame import Results
-from src.reporting.groups import group_runs, parse_notes
+from src.reporting.groups import group_runs, parse_notes, settings
 from src.reporting.headline import headline_table, readme_block
 from src.reporting.page import (
     averages_table,
@@ -267,6 +267,16 @@ def test_a_row_is_the_seeds_of_one_experiment_dataset_and_budget():
         other["config"][section][key] = value
         with pytest.raises(ConfigError, match=rf"{section}\.{key}.*run_name of its own"):
             group_runs([*runs, other])
+
+
+def test_what_a_run_trains_is_its_sections_keys_dotted_a_null_section_none():
+    config = {"model": None, "seed": 1, "trainer": {"precision": "32", "devices": 2}}
+    config["adversarial"] = {"discriminator": {"kernel": [2, 7]}, "eta": None, "extra": {}}
+    assert settings(config) == {
+        "adversarial.discriminator.kernel": "[2, 7]",
+        "adversarial.eta": "null",
+        "trainer.precision": '"32"',
+    }
 
 
 def test_the_two_budgets_of_an_experiment_as_composed_are_its_name_not_two_settings(tmp_path):

@@ -396,6 +396,19 @@ def test_each_cell_is_mean_and_sample_std_over_the_seeds():
     assert absent.value.isna().all() and set(absent.absent) == {"missing"}
 
 
+def test_an_average_over_given_actions_needs_every_one_of_them():
+    """The same-set comparisons and the zero-velocity clause average over a given set of actions:
+    none where one of them has no value (discussion is absent in every seed)."""
+    results = Results(group_runs(seed_runs((0.0, 0.02, 0.04))))
+    group = results.groups[0]
+    assert results.means(group, "srnn", "best", actions=["walking"])[80] == pytest.approx(0.32)
+    assert results.means(group, "srnn", "best", actions=["walking", "eating"])[160] == (
+        pytest.approx(0.46)
+    )
+    assert results.means(group, "srnn", "best", actions=["walking", "discussion"]) == {}
+    assert results.means(group, "srnn", "best", actions=[]) == {}
+
+
 def test_one_seed_has_no_spread():
     results = Results(group_runs(seed_runs((0.0,))))
     mean, std, n = results.average(results.groups[0], "srnn", "best")[80]

@@ -8,7 +8,6 @@ that the protocol's deterministic zero-velocity does not give).
 
 from __future__ import annotations
 
-import contextlib
 from typing import NamedTuple
 
 import pandas as pd
@@ -73,6 +72,12 @@ def stat(mean: float, std: float, n: int, decimals: int = 2) -> str:
     return f"{mean:.{decimals}f}" + (f" ± {std:.{decimals}f}" if n > 1 else "")
 
 
+def long_values(published: dict) -> pd.DataFrame:
+    """{action: {ms: value}} as rows: action, ms, published."""
+    cells = [(a, ms, v) for a, by_ms in published.items() for ms, v in by_ms.items()]
+    return pd.DataFrame(cells, columns=["action", "ms", "published"])
+
+
 def training_files(group: Group, actions: list[str]) -> dict[str, tuple[int, int]]:
     """{action: (present, expected)} training files of the group's data copy."""
     from src.data.layout import H36M_TRAIN_SUBJECTS, cmu_files, h36m_files
@@ -117,17 +122,11 @@ class Results:
                 f"{self.entries[sets[sets > 1].index[0][0]].label}: its seeds were evaluated on "
                 "different actions; only runs of one configuration on one data copy are averaged"
             )
-        euler = values[values.metric == "euler"]
-        self.evaluated = {g: list(dict.fromkeys(f.action)) for g, f in euler.groupby("g")}
-        self._seeds = {  # judged -> each seed's average over the (judged) actions
-            judged: values[values.trained | (not judged)]
-            .groupby([*KEYS, "seed", "horizon"])
-            .value.mean()
-            for judged in (False, True)
-        }
+        self.values = values
+        self.evaluated = values[values.metric == "euler"].groupby("g").action.unique().map(list)
         self._refs = {e: self._references(e) for e in self.entries}
         self.zero_cells = self._zero_velocity_cells()
-        self.slip_cells = self.zero_cells[self.zero_cells.slip.astype(bool)]
+        self.slip_cells = self.zero_cells[self.zero_cells.slip]
         self.slips: dict[str, dict[str, str]] = {}  # reference key -> {action: why}
         for e in self.entries:
             for ref in self._refs[e]:
@@ -153,25 +152,31 @@ class Results:
         gone = self.untrained.get(group.dataset, set())
         return [a for a in self.actions(group, judged=False) if a in gone]
 
-    def _by_horizon(self, group, protocol, checkpoint, metric="euler", judged=False):
-        """Each seed's average over the (judged) actions, by horizon; None where there is none."""
-        key = (self._g[group], protocol, checkpoint, metric)
-        with contextlib.suppress(KeyError):
-            return self._seeds[judged].loc[key].groupby(level="horizon")
+    def seed_means(self, entry, protocol, checkpoint, metric="euler", judged=False, actions=None):
+        """Each seed's average over the (judged) actions, or over exactly `actions` (empty unless
+        every one was evaluated), indexed by seed and horizon."""
+        f = self.values
+        f = f[(f.g == self._g[entry]) & (f.protocol == protocol) & (f.checkpoint == checkpoint)]
+        f = f[(f.metric == metric) & (f.trained | (not judged))]
+        if actions is not None:
+            f = f[f.action.isin(actions)]
+            f = f if len(actions) and set(f.action) == set(actions) else f.iloc[:0]
+        return f.groupby(["seed", "horizon"]).value.mean().groupby(level="horizon")
 
     def average(self, group, protocol, checkpoint, metric="euler", judged=False) -> dict:
         """{ms: (mean, std, n)} over the seeds; {} where there is none."""
-        by_ms = self._by_horizon(group, protocol, checkpoint, metric, judged)
-        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms or ()}
+        by_ms = self.seed_means(group, protocol, checkpoint, metric, judged)
+        return {int(ms): (v.mean(), v.std(), len(v)) for ms, v in by_ms}
 
-    def means(self, group, protocol, checkpoint, judged=False) -> dict[int, float]:
-        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
-        return {int(ms): v.mean() for ms, v in by_ms or ()}
+    def means(self, group, protocol, checkpoint, judged=False, actions=None) -> dict[int, float]:
+        """{ms: the mean over the seeds}; over `actions`: {} unless every one was evaluated."""
+        by_ms = self.seed_means(group, protocol, checkpoint, judged=judged, actions=actions)
+        return {int(ms): v for ms, v in by_ms.mean().items()}
 
     def spread(self, group, protocol, checkpoint, judged=False) -> dict[int, float] | None:
         """The largest minus the smallest of the seeds' Euler averages; None for one seed."""
-        by_ms = self._by_horizon(group, protocol, checkpoint, judged=judged)
-        if by_ms is not None and by_ms.size().max() > 1:
+        by_ms = self.seed_means(group, protocol, checkpoint, judged=judged)
+        if by_ms.ngroups and by_ms.size().max() > 1:
             return (by_ms.max() - by_ms.min()).to_dict()
 
     def _references(self, group: Group) -> list[Reference]:
@@ -198,19 +203,20 @@ class Results:
         """Each published zero-velocity cell of an action evaluated here on the papers' windows
         (SRNN seeds) beside ours: key, dataset, action, ms, published, ours, slip (beyond
         rounding), why."""
-        rows = []
-        f = self.frame[(self.frame.protocol == "srnn") & (self.frame.metric == "euler")]
-        for zero in (b for b in self.baselines if b.label == ZERO):
-            cells = f[f.g == self._g[zero]].dropna(subset=["value"])
-            for ref in (r for r in self._refs[zero] if r.key.endswith(f" {ZERO}")):
-                for action, ms, ours in cells[["action", "horizon", "value"]].itertuples(False):
-                    if (printed := ref.published.get(action, {}).get(ms)) is None:
-                        continue
-                    why = f"published {printed:.2f} at {ms} ms, the protocol gives {ours:.3f}"
-                    slip = abs(ours - printed) > ROUNDING
-                    rows.append((ref.key, zero.dataset, action, ms, printed, ours, slip, why))
-        columns = ["key", "dataset", "action", "ms", "published", "ours", "slip", "why"]
-        return pd.DataFrame(rows, columns=columns)
+        f = self.values[(self.values.protocol == "srnn") & (self.values.metric == "euler")]
+        f = f.rename(columns={"horizon": "ms", "value": "ours"})
+        cells = [
+            f[f.g == self._g[zero]].merge(long_values(ref.published), on=["action", "ms"])
+            .assign(key=ref.key)
+            for zero in self.baselines if zero.label == ZERO
+            for ref in self._refs[zero] if ref.key.endswith(f" {ZERO}")
+        ]  # fmt: skip
+        empty = long_values({}).assign(ours=0.0, key="", dataset="").astype({"ms": int})
+        c = pd.concat([empty, *cells], ignore_index=True)
+        c["why"] = [f"published {p:.2f} at {ms} ms, the protocol gives {o:.3f}"
+                    for p, ms, o in zip(c.published, c.ms, c.ours, strict=True)]  # fmt: skip
+        c["slip"] = (c.ours - c.published).abs() > ROUNDING
+        return c[["key", "dataset", "action", "ms", "published", "ours", "slip", "why"]]
 
     def slips_in(self, reference: Reference, actions: list[str]) -> dict[str, str]:
         """{action: why} of the `actions` whose published values under `reference` are slips."""
@@ -227,44 +233,34 @@ class Results:
         actions = self.clean_actions(group, reference, judged)
         return same_set_average(reference.published, actions, HORIZONS)
 
-    def mean_over(self, entry: Group, protocol: str, checkpoint: str, actions) -> dict:
-        """{ms: mean over the seeds of each seed's Euler average over `actions`}; {} unless
-        every one of them was evaluated."""
-        f = self.frame
-        f = f[(f.g == self._g[entry]) & (f.protocol == protocol) & (f.checkpoint == checkpoint)]
-        f = f[(f.metric == "euler") & f.action.isin(actions)].dropna(subset=["value"])
-        if not len(actions) or set(f.action) != set(actions):
-            return {}
-        return f.groupby(["seed", "horizon"]).value.mean().groupby(level="horizon").mean().to_dict()
-
     def no_better_than_zero(self, group: Group, protocol: str) -> dict[str, list[int]]:
         """{checkpoint: horizons where, as printed, ours is not below zero-velocity's average over
         the same judged actions}; {} without a zero-velocity evaluation of them."""
         zeros = [b for b in self.baselines if (b.label, b.dataset) == (ZERO, group.dataset)]
         actions = self.actions(group)
-        if not zeros or not (zero := self.mean_over(zeros[0], protocol, "-", actions)):
+        if not zeros or not (zero := self.means(zeros[0], protocol, "-", actions=actions)):
             return {}
         out = {}
         for s in SELECTIONS:
-            ours = self.mean_over(group, protocol, s, actions)
+            ours = self.means(group, protocol, s, actions=actions)
             out[s] = [ms for ms in HORIZONS if ms in ours and ms in zero and
                       round(ours[ms], 2) >= round(zero[ms], 2)]  # fmt: skip
         return out
 
-    def ours_same_set(self, group: Group, reference: Reference, protocol: str, checkpoint: str):
-        """{ms: ours} over the reference's same-set actions (slips left out on both sides)."""
+    def gaps(self, group: Group, reference: Reference, protocol: str) -> pd.DataFrame:
+        """At each horizon of the reference's same-set average (`same`): ours over its actions
+        (best, last; slips left out on both sides), ours minus it as printed ("best gap", ...)."""
         actions = self.clean_actions(group, reference)
-        return self.mean_over(group, protocol, checkpoint, actions)
+        ours = {s: self.means(group, protocol, s, actions=actions) for s in SELECTIONS}
+        t = pd.DataFrame({"same": self.same_set(group, reference), **ours}).dropna(subset="same")
+        for s in SELECTIONS:
+            t[f"{s} gap"] = [printed_gap(o, p) for o, p in zip(t[s], t.same, strict=True)]
+        return t
 
     def missed(self, group: Group, protocol: str, reference: Reference, target: float) -> dict:
         """{checkpoint: horizons where it is beyond `target` of the same-set average as printed}."""
-        same, out = self.same_set(group, reference), {}
-        for s in SELECTIONS:
-            ours = self.ours_same_set(group, reference, protocol, s)
-            out[s] = [
-                ms for ms in same if ms in ours and abs(printed_gap(ours[ms], same[ms])) > target
-            ]
-        return out
+        t = self.gaps(group, reference, protocol)
+        return {s: [int(ms) for ms in t.index[t[f"{s} gap"].abs() > target]] for s in SELECTIONS}
 
     def reference(self, group: Group) -> tuple[Reference | None, str]:
         """The reference a group is judged against (its own paper's, unless that one has no
@@ -295,25 +291,17 @@ class Results:
 
     def validation_means(self, group: Group, protocol: str) -> dict[int, dict[int, float]]:
         """{iterations: {ms: mean over the seeds}} at the validations every seed made, else {}."""
-        curves = [r.get("validations") or {} for r in group.runs]
+        curves = [pd.DataFrame(r.get("validations") or {}).T.stack() for r in group.runs]
         protocols = {r["config"]["data"].get("eval_protocol", "srnn") for r in group.runs}
-        if not all(curves) or protocols != {protocol}:
+        if not all(len(c) for c in curves) or protocols != {protocol}:
             return {}
-        out = {}
-        for i in sorted(set.intersection(*(set(c) for c in curves))):
-            shared = [ms for ms in curves[0][i] if all(ms in c[i] for c in curves)]
-            out[i] = {ms: sum(c[i][ms] for c in curves) / len(curves) for ms in shared}
-        return out
+        means = pd.concat(curves, axis=1).dropna().mean(axis=1).sort_index()
+        return {int(i): {int(ms): v for (_, ms), v in e.items()} for i, e in means.groupby(level=0)}
 
     def diagnosis(self, group: Group, protocol: str, judgement: Judgement, checked=None) -> str:
         """Where a judged row misses most, the actions that carry it, the seed spread beside it."""
-        ref = judgement.reference
-        same = self.same_set(group, ref)
-        gaps = {
-            (s, ms): printed_gap(self.ours_same_set(group, ref, protocol, s)[ms], same[ms])
-            for s, horizons in judgement.missed.items()
-            for ms in horizons
-        }
+        ref, t = judgement.reference, self.gaps(group, judgement.reference, protocol)
+        gaps = {(s, ms): t.at[ms, f"{s} gap"] for s, hs in judgement.missed.items() for ms in hs}
         (selection, ms), gap = max(gaps.items(), key=lambda kv: abs(kv[1]))
         f = self.frame
         f = f[(f.g == self._g[group]) & (f.protocol == protocol) & (f.metric == "euler")]
@@ -323,8 +311,8 @@ class Results:
         top = ", ".join(f"{a} {signed(v)}" for a, v in sorted(top, key=lambda kv: -abs(kv[1]))[:3])
         text = (
             f"{group.label} ({group.iterations:,} iterations) misses most at {ms} ms ({selection} "
-            f"checkpoint): {signed(gap)} against {ref.name}'s {same[ms]:.2f}, the mean of the "
-            f"{len(actions)} actions' gaps, the largest {top}."
+            f"checkpoint): {signed(gap)} against {ref.name}'s {t.at[ms, 'same']:.2f}, the mean of "
+            f"the {len(actions)} actions' gaps, the largest {top}."
         )
         if (spread := self.spread(group, protocol, selection, judged=True)) is not None:
             size = "larger" if spread[ms] > abs(gap) else "smaller"

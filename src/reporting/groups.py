@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 
+import pandas as pd
+
 from src.lit.factory import ConfigError
 
 # What a model is and how it trains (not where files live, the device, the logging).
@@ -19,21 +21,10 @@ ABLATIONS = [f"li2018_h36m_{n}" for n in ABLATIONS.split()]
 
 
 def settings(config: dict, sections=SECTIONS) -> dict[str, str]:
-    """{dotted key: value as JSON} of the config's `sections` (dotted too)."""
-
-    def flat(value, prefix):
-        if not isinstance(value, dict):
-            return {prefix: json.dumps(value)}
-        return {k: v for key, x in value.items() for k, v in flat(x, f"{prefix}.{key}").items()}
-
-    out = {}
-    for section in sections:
-        value = config
-        for key in section.split("."):
-            value = value.get(key) if isinstance(value, dict) else None
-        if value is not None:
-            out.update(flat(value, section))
-    return out
+    """{dotted key: value as JSON} of the config's `sections` (dotted too); none of a null one."""
+    flat = pd.json_normalize(config, sep=".").to_dict("records")[0] if config else {}
+    kept = lambda k, v: any(k.startswith(f"{s}.") or (k == s and v is not None) for s in sections)  # noqa: E731
+    return {k: json.dumps(v) for k, v in flat.items() if kept(k, v)}
 
 
 def seed_of(run: dict):

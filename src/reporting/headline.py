@@ -53,19 +53,17 @@ def where(horizons: dict[str, list[int]]) -> str:
 
 def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str], str]:
     """(label, cells, verdict): the same-set average, ours minus it, where beyond the target."""
-    actions, same = results.actions(group), results.same_set(group, ref)
-    ours = {s: results.ours_same_set(group, ref, protocol, s) for s in SELECTIONS}
-    if not same:
+    actions, t = results.actions(group), results.gaps(group, ref, protocol)
+    if t.empty:
         cells = [fmt(ref.published.get(AVERAGE, {}).get(ms)) for ms in HORIZONS]
         return f"{ref.name}, as printed (all of its actions)", cells, "not judged"
     name = f"{ref.name}, {len(actions)} actions"
     if slips := results.slips_in(ref, actions):
         kept = len(actions) - len(slips)
         name = f"{ref.name}, {kept} actions (slips left out: {', '.join(slips)})"
-    gaps = {
-        ms: [fr.signed(fr.printed_gap(ours[s][ms], same[ms])) for s in SELECTIONS] for ms in same
-    }
-    cells = [f"{same[ms]:.2f} ({', '.join(gaps[ms])})" if ms in same else "-" for ms in HORIZONS]
+    gaps = t[["same", "best gap", "last gap"]].itertuples()
+    shown = {ms: f"{same:.2f} ({fr.signed(b)}, {fr.signed(last)})" for ms, same, b, last in gaps}
+    cells = [shown.get(ms, "-") for ms in HORIZONS]
     missed = results.missed(group, protocol, ref, target) if target is not None else {}
     if target is None or not any(missed.values()):
         return name, cells, "-" if target is None else f"within {target:.2f}"
@@ -90,31 +88,27 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
                 f"published one likewise), shown in the per-action tables and the rows 'all "
                 f"{len(everything)} actions'."
             )
-        j, verdict = judged.get(group), "-"
-        if j is not None and j.status == "not judged":
+        j, verdict = judged[group], "-"
+        if j.status == "not judged":
             verdict = f"not judged ({j.why})"
-        elif j is not None and j.status != "-":
+        elif j.status != "-":
             ref = j.reference
-            verdict = j.status if ref is None else f"**{j.status}**, judged against {ref.name}"
             others = [r for r in results.references(group) if r is not ref]
-            if ref is not None and (others or "left out" in j.why):
-                also = "; ".join(f"{r.name}" + (f" ({r.about})" if r.about else "") for r in others)
+            verdict = f"**{j.status}**, judged against {ref.name}"
+            if others or "left out" in j.why:
+                also = "; ".join(r.name + (f" ({r.about})" if r.about else "") for r in others)
                 also = f"; second reference: {also}" * bool(also)
                 verdict += mark(f"{group.label}: judged against {ref.name} ({j.why}){also}.")
         if (no_better := results.no_better_than_zero(group, protocol)) and any(no_better.values()):
             verdict += f"; no better than zero-velocity at {where(no_better)}"
-        for all_actions in (False, True) if untrained else (False,):
-            for s in SELECTIONS:
-                first = (label, group.dataset) if (s, all_actions) == ("best", False) else ("", "")
-                # The set named as training's TensorBoard and src.eval name it.
-                which = (
-                    f"all {len(everything)} actions"
-                    if all_actions
-                    else (f"{len(judged_actions)} trained actions")
-                )
-                what = f"ours, {s}" + f", {which}" * bool(untrained)
-                cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
-                rows.append([*first, budget, what, n, *cells, "" if first[0] == "" else verdict])
+        # The sets named as training's TensorBoard and src.eval name them.
+        sets = [f"{len(judged_actions)} trained actions", f"all {len(everything)} actions"]
+        ours = [(a, s) for a in ((False, True) if untrained else (False,)) for s in SELECTIONS]
+        for i, (all_actions, s) in enumerate(ours):
+            what = f"ours, {s}" + f", {sets[all_actions]}" * bool(untrained)
+            cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
+            first = [label, group.dataset] if i == 0 else ["", ""]
+            rows.append([*first, budget, what, n, *cells, "" if i else verdict])
         for ref in results.references(group):
             name, cells, text = _reference_row(
                 results, group, ref, protocol, targets.get(group.dataset)

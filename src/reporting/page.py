@@ -9,6 +9,8 @@ import itertools
 import os
 from pathlib import Path
 
+import pandas as pd
+
 import src.reporting.frame as fr
 import src.reporting.headline as hl
 from src.lit.factory import ConfigError
@@ -91,24 +93,21 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
     """Each group's per-action mean, std (n - 1) and published value; why an action is absent."""
     f = results.frame[(results.frame.protocol == protocol) & (results.frame.metric == metric)]
     keys = ["g", "checkpoint", "action"]
-    stats = f.groupby([*keys, "horizon"], sort=False).value.agg(["mean", "std"])
     rows = f.groupby(keys, sort=False)
     out = rows.seed.nunique().rename("n").to_frame()
     out["note"] = rows.absent.first().where(
         rows.absent.first().astype(bool) | rows.trained.first(), "no training files in this copy"
     )
-    for ms in HORIZONS:
-        if ms in stats.index.get_level_values("horizon"):
-            cells = stats.xs(ms, level="horizon")
-            out[f"{ms} ms"], out[f"{ms} ms std"] = cells["mean"], cells["std"]
+    stats = f.groupby([*keys, "horizon"]).value.agg(["mean", "std"]).unstack("horizon")
+    for ms in (ms for ms in HORIZONS if ms in stats.columns.get_level_values("horizon")):
+        out[f"{ms} ms"], out[f"{ms} ms std"] = stats["mean", ms], stats["std", ms]
     out = out.reset_index()
-    if metric == "euler":
-        refs = [results.references(results.entries[g])[:1] for g in out.g]
-        for ms in HORIZONS:
-            pub = zip(refs, out.action, strict=True)
-            out[f"{ms} ms published"] = [
-                r[0].published.get(a, {}).get(ms) if r else None for r, a in pub
-            ]
+    first = {
+        g: r[0].published for g, e in enumerate(results.entries) if (r := results.references(e))
+    }
+    for ms in HORIZONS if metric == "euler" else ():
+        pairs = zip(out.g, out.action, strict=True)
+        out[f"{ms} ms published"] = [first.get(g, {}).get(a, {}).get(ms) for g, a in pairs]
     groups = [results.entries[g] for g in out.pop("g")]
     out.insert(0, "iterations", [g.iterations if g.kind == "trained" else "" for g in groups])
     out.insert(0, "data", [g.dataset for g in groups])
@@ -238,17 +237,17 @@ def data_lines(results: Results) -> list[str]:
 
 
 def published_csv(results: Results) -> str:
-    """Every published cell of the references on the page, and why it is a slip ('' if not)."""
+    """Every published cell of the references on the page, zero-velocity's beside it as the
+    protocol gives it on this data, and why it is a slip: found by the protocol, else its
+    action's known slip (references.json); '' if not."""
     keys = {r.key for e in results.entries for r in results.references(e)}
-    f = published_frame()
-    f = f[(f.paper + " " + f.method).isin(keys)].copy()
-    found = {(c.key, c.dataset, c.action, c.ms): c.why for c in results.slip_cells.itertuples()}
-    ours = {(c.key, c.dataset, c.action, c.ms): c.ours for c in results.zero_cells.itertuples()}
-    keys = list(zip(f.paper + " " + f.method, f.dataset, f.action, f.ms, strict=True))
-    f["ours"] = [ours.get(k) for k in keys]  # zero-velocity's, the protocol's on this data
-    # A cell found by the protocol, else its action's known slip (references.json).
-    f["slip"] = [found.get(k) or results.slips.get(k[0], {}).get(k[2], "") for k in keys]
-    return f.to_csv(index=False, float_format="%.4g")
+    f = published_frame().assign(key=lambda f: f.paper + " " + f.method)
+    zero = results.zero_cells.assign(found=lambda z: z.why.where(z.slip))
+    on = ["key", "dataset", "action", "ms"]
+    f = f[f.key.isin(keys)].merge(zero[[*on, "ours", "found"]], how="left", on=on)
+    known = [results.slips.get(k, {}).get(a, "") for k, a in zip(f.key, f.action, strict=True)]
+    f["slip"] = f.pop("found").astype(object).fillna(pd.Series(known, dtype=object))
+    return f.drop(columns="key").to_csv(index=False, float_format="%.4g")
 
 
 def build_page(
