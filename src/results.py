@@ -8,8 +8,8 @@ from pathlib import Path
 import lightning as L
 from omegaconf import DictConfig
 
+from src.config import check
 from src.data.files import atomic_write
-from src.lit.config import check
 from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
 from src.reporting.published import published_for
