@@ -122,9 +122,8 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
 
 
 def hydra_error(err: Exception, config_name: str) -> str:
-    """Hydra's refusal while composing `config_name`, in one line. Reworded only where it is
-    unclear to a new user: a misspelt option or key gets the close choices (Hydra offers to add
-    the misspelt key with +, which nothing would read)."""
+    """Hydra's refusal while composing `config_name`, in one line; a misspelt option or key gets
+    the close choices (Hydra offers to add the key with +, which nothing would read)."""
     cause = err.__cause__
     if isinstance(err, MissingConfigException) and err.options is not None:
         group, _, wanted = (err.missing_cfg_file or "?/?").rpartition("/")
@@ -149,14 +148,11 @@ def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
     if (CONF_DIR / group).is_dir() and not (where and len(parent)):  # unchosen (eval's data)
         options = group_options(group).replace(", ", "|")
         return f"{key}: no {group} option is chosen; choose one first: {group}={options} {key}=..."
-    present = [
-        str(k) for k in parent if k != "hydra" and (not rest or isinstance(parent[k], DictConfig))
-    ]
+    present = [str(k) for k in parent if not rest or isinstance(parent[k], DictConfig)]
     addable = []
     with contextlib.suppress(Exception):  # no constructor (or an unknown one): no argument
         fields = dataclasses.fields(constructor_schema(parent["_target_"])) if not rest else ()
         addable = [f.name for f in fields if f.name not in parent]
     spell = lambda c: ("+" if c in addable else "") + ".".join(filter(None, (where, c))) + rest  # noqa: E731
     hint = did_you_mean(missing, present + addable, spell)
-    keys = ", ".join(sorted(k for k in present if k[0] != "_"))
-    return f"{key}: no such key.{hint} Keys under {where or 'the top level'}: {keys}."
+    return f"{key}: no such key.{hint} (`--help` lists the settings; --cfg job all keys)"

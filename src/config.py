@@ -1,11 +1,8 @@
-"""The entry points' top-level keys, declared once: the dataclasses below are registered in
-Hydra's ConfigStore and are the schema of conf/<entry>.yaml (its defaults list names them), so
-Hydra refuses an unknown key or a value of the wrong type while composing. A node Hydra
-instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's `builds`), which
-checks its own ranges. `check` adds what neither does: the ranges (`within`) and choices
-(`one_of`) of keys no constructor reads, and the few invariants across keys."""
+"""The entry points' top-level keys, declared once: dataclasses in Hydra's ConfigStore, the
+schema of conf/<entry>.yaml, so Hydra refuses an unknown or wrongly typed key while composing.
+A `_target_` node is typed by its constructor's signature (hydra-zen), which checks its ranges;
+`check` adds the ranges of the keys no constructor reads and the invariants across keys."""
 
-import contextlib
 import dataclasses
 import difflib
 import functools
@@ -189,18 +186,17 @@ def check_types(cfg: DictConfig, entry: str) -> None:
     for key, schema in GROUPS.items():
         if isinstance(plain.get(key), dict):
             _check_node(plain[key], schema, key)
-    # Values as written first, copies (${model.net.kernel}) after: named where they were set.
-    for copies in (False, True):
-        for path, node in _targets(plain, ""):
-            try:
-                schema = constructor_schema(node["_target_"], "_partial_" in node)
-            except Exception as err:  # noqa: BLE001 (ImportError, AttributeError, ...)
-                target = node["_target_"]
-                raise ConfigError(f"{path}._target_={target} cannot be imported: {err}") from None
-            written = functools.reduce(lambda n, k: n.get(k) or {}, path.split("."), raw)
-            skip = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
-            skip |= set() if copies else {k for k, v in written.items() if "${" in str(v)}
-            _check_node({k: v for k, v in node.items() if k not in skip}, schema, path)
+    for path, node in _targets(plain, ""):
+        try:
+            schema = constructor_schema(node["_target_"], "_partial_" in node)
+        except Exception as err:  # noqa: BLE001 (ImportError, AttributeError, ...)
+            target = node["_target_"]
+            raise ConfigError(f"{path}._target_={target} cannot be imported: {err}") from None
+        # A copy (${model.net.kernel}) is checked, and named, where it was set.
+        written = functools.reduce(lambda n, k: n.get(k) or {}, path.split("."), raw)
+        skip = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
+        skip |= {k for k, v in written.items() if "${" in str(v)}
+        _check_node({k: v for k, v in node.items() if k not in skip}, schema, path)
 
 
 def _check_node(plain: dict, schema: type, path: str) -> None:
@@ -210,11 +206,7 @@ def _check_node(plain: dict, schema: type, path: str) -> None:
         key = _join(path, err.full_key)
         if isinstance(err, ConfigKeyError) and err.parent_node is not None:
             where, target = key.rpartition(".")[0], err.parent_node.get("_target_")
-            of = (
-                f"an argument of {target}"
-                if target
-                else f"a key {f'of {where}' if where else 'at the top level'}"
-            )
+            of = f"an argument of {target}" if target else f"a key of {where or 'the config'}"
             hint = did_you_mean(str(err.key), map(str, err.parent_node), lambda c: _join(where, c))
             raise ConfigError(f"{key} is not {of}, so nothing would read it.{hint}") from None
         raise ConfigError(f"{key}={err.value!r} must be {_words(err.child_node, err)}.") from None
@@ -291,17 +283,17 @@ def _resolved(node: DictConfig, path: str = "") -> dict:
     interpolation (an environment variable) gives another type is refused."""
     out = {}
     for key in (k for k in node if k != "hydra"):
-        with contextlib.suppress(OmegaConfBaseException):  # any other failure to resolve
-            try:
-                value = node[key]
-            except ValidationError as err:
-                words = _words(node._get_node(key), err)
-                raise ConfigError(f"{_join(path, key)}={err.value!r} must be {words}.") from None
+        try:
+            value = node[key]
             if isinstance(value, ListConfig):
                 value = OmegaConf.to_container(value, resolve=True)
-            out[key] = (
-                _resolved(value, _join(path, key)) if isinstance(value, DictConfig) else value
-            )
+        except ValidationError as err:
+            words = _words(node._get_node(key), err)
+            raise ConfigError(f"{_join(path, key)}={err.value!r} must be {words}.") from None
+        except Exception:  # noqa: BLE001 (a key that points at the run folder, not set up yet)
+            continue
+        nested = isinstance(value, DictConfig)
+        out[key] = _resolved(value, _join(path, key)) if nested else value
     return out
 
 

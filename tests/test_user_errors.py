@@ -232,7 +232,7 @@ def test_cli_misspelt_key_names_the_close_matches(tmp_path, synthetic_data_dir):
         data_dir=synthetic_data_dir, log_dir=tmp_path,
     )  # fmt: skip
     for proc in procs:
-        refused(_error_line(proc), "trainer.max_step", "+trainer.max_steps", "accelerator")
+        refused(_error_line(proc), "trainer.max_step", "+trainer.max_steps")
     assert not list(tmp_path.rglob("checkpoints"))
 
 

@@ -102,10 +102,9 @@ class MotionPredictor(L.LightningModule):
             raise ValueError(f"untrained_actions {sorted(unknown)} are not among {self.actions}")
         self.untrained_actions = [a for a in self.actions if a in untrained]
         self.run_info: dict[str, Any] = {}  # commit, config, missing files: in checkpoints
-        # torch.compile the two objectives (True; "auto": on a CUDA device only).
-        self.compile_step = compile.get("enabled", False)
+        self.compile_step = compile.get("enabled", False)  # torch.compile the two objectives
         self.compile_mode = compile.get("mode", "reduce-overhead")
-        compiled(self.compile_step, cuda=False)  # refused here, not at the first step
+        compiled(self.compile_step, cuda=False)  # a misspelt setting: refused here
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
@@ -152,11 +151,6 @@ class MotionPredictor(L.LightningModule):
                 "trainer.precision=16-mixed scales the gradients, which the L2 term of eq. (9) "
                 "is added to unscaled; use trainer.precision=32 (default) or bf16-mixed"
             )
-
-    def _eta(self) -> float:
-        # global_step: the iterations done (the Trainer's count, a host integer).
-        # In [0, 1]: each schedule checks its arguments, a network its eta (a float one).
-        return 1.0 if self.eta_schedule is None else float(self.eta_schedule(self.global_step))
 
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
         """The 75 frames D judges: observed, then `future` (real) or the prediction `fake`, with the
@@ -224,7 +218,8 @@ class MotionPredictor(L.LightningModule):
                 "datamodule's with data.discriminator_windows=true; this one has keys "
                 f"{sorted(batch)}. Set data.discriminator_windows=true or adversarial=none."
             )
-        eta_in = eta = self._eta()
+        # In [0, 1]: each schedule checks its own arguments (a network, a float eta).
+        eta_in = eta = float(self.eta_schedule(self.global_step)) if self.eta_schedule else 1.0
         compiled, d_objective, g_objective = self._objectives()
         if compiled:
             # One training iteration: outputs of the previous one's CUDA graphs may be reused.
