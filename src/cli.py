@@ -140,8 +140,7 @@ def hydra_error(err: Exception, config_name: str) -> str:
 
 
 def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
-    """`key` names `missing`, which `parent` lacks: the close keys, and the constructor
-    arguments a + adds."""
+    """`key` names `missing`, which `parent` lacks: the close keys, and arguments a + adds."""
     where = parent._get_full_key(None) or ""
     rest = key[len(where) + len(missing) + bool(where) :]
     group = where or missing

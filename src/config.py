@@ -152,8 +152,7 @@ BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 class _Builds(BuildsFn):
-    """hydra-zen's `builds`, reading `int | None` as Optional[int], and a union without what a
-    config cannot hold (`float | Tensor` is a float)."""
+    """hydra-zen's `builds`; `int | None` is Optional[int], `float | Tensor` a float."""
 
     @classmethod
     def _sanitized_type(cls, type_, **kwargs):
@@ -178,9 +177,8 @@ def constructor_schema(target: str, partial: bool = False) -> type:
 
 
 def check_types(cfg: DictConfig, entry: str) -> None:
-    """A ConfigError naming the first key whose value has the wrong type or range: the top
-    level's ranges (Hydra typed it), the groups' keys, the constructor arguments as written
-    (`entry`: a key of SCHEMAS)."""
+    """A ConfigError naming the first key whose value has the wrong type or range, or that
+    nothing reads: the top level, the groups, the constructors' arguments as written."""
     plain, raw = _resolved(cfg), OmegaConf.to_container(cfg, resolve=False)
     _check_node(plain, SCHEMAS[entry], "")  # Hydra checked it, but not a resume's config
     for key, schema in GROUPS.items():
@@ -216,8 +214,7 @@ def _check_node(plain: dict, schema: type, path: str) -> None:
 
 def did_you_mean(word: str, choices, spell=lambda c: c, cutoff: float = 0.6) -> str:
     """ " Did you mean a or b?" of the choices close to `word`, each as `spell` writes it."""
-    choices = [c for c in choices if c[0] != "_"]
-    close = difflib.get_close_matches(word, choices, n=3, cutoff=cutoff)
+    close = difflib.get_close_matches(word, [c for c in choices if c[0] != "_"], 3, cutoff)
     return f" Did you mean {' or '.join(map(spell, close))}?" if close else ""
 
 
@@ -278,9 +275,8 @@ def _check_ranges(plain: dict, schema: type, path: str) -> None:
 
 
 def _resolved(node: DictConfig, path: str = "") -> dict:
-    """`node` as plain values, resolved, without Hydra's node and the keys that point at state
-    not set up yet (the run folder): they are not the user's text. A typed key whose
-    interpolation (an environment variable) gives another type is refused."""
+    """`node` resolved to plain values, without Hydra's node and the keys pointing at the run
+    folder (not set up yet); a typed key whose interpolation gives another type is refused."""
     out = {}
     for key in (k for k in node if k != "hydra"):
         try:

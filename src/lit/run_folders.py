@@ -276,8 +276,8 @@ def check_sweep(config: DictConfig) -> None:
         except HydraException as err:  # Hydra's refusal of a value (its type: src/config.py)
             if not expanded:  # Optuna's fixed values composed already (the sweep's config)
                 return
-            text = f"{err}\n{err.__cause__ or ''}".split("Config search path:")[0]
-            words = " ".join(x for x in text.split() if not x.startswith("object_type"))
+            text = f"{err} {err.__cause__ or ''}".split("Config search path:")[0].split()
+            words = " ".join(x for x in text if not x.startswith("object_type"))
             refuse(f"job {num} of the sweep ({' '.join(overrides)}) cannot be composed, so no "
                    f"job of the sweep was started: {words}")  # fmt: skip
         task = OmegaConf.masked_copy(job, [k for k in job if k != "hydra"])
