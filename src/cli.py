@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import difflib
 import functools
 import logging
 import os
@@ -19,7 +18,7 @@ from hydra.errors import ConfigCompositionException as Composition
 from hydra.errors import MissingConfigException, OverrideParseException, SearchPathException
 from omegaconf import DictConfig, OmegaConf
 
-from src.lit.config import constructor_schema
+from src.config import constructor_schema, did_you_mean
 from src.lit.factory import PROJECT_ROOT
 from src.lit.run_folders import USER_ERRORS, nothing_left_if_refused, refuse, stop_interrupted
 
@@ -123,50 +122,36 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
 
 
 def hydra_error(err: Exception, config_name: str) -> str:
-    """One line for an error Hydra raised while composing `config_name`."""
-    text, cause = str(err), err.__cause__
-    see = f"(`python -m src.{config_name} --help` lists the settings)"
-    if isinstance(err, OverrideParseException):
-        return (
-            f"cannot parse the override {err.override!r}: {err.message.splitlines()[0]}. Fix: "
-            "write key=value; quote a value holding '=', ',', spaces or brackets: \"k='a=b,c'\"."
-        )
+    """Hydra's refusal while composing `config_name`, in one line; a misspelt option or key gets
+    the close choices (Hydra offers to add the key with +, which nothing would read)."""
+    cause = err.__cause__
     if isinstance(err, MissingConfigException) and err.options is not None:
         group, _, wanted = (err.missing_cfg_file or "?/?").rpartition("/")
-        close = difflib.get_close_matches(wanted, err.options, n=3, cutoff=0.5)
-        hint = f" Did you mean {' or '.join(f'{group}={c}' for c in close)}?" if close else ""
         return (
-            f"{group}={wanted}: no such option of {config_name}.{hint} Choose one of: "
+            f"{group}={wanted}: no such option of {config_name}."
+            f"{did_you_mean(wanted, err.options, lambda c: f'{group}={c}', 0.5)} Choose one of: "
             f"{', '.join(sorted(err.options))}."
         )
-    if text.startswith("Could not override '") and getattr(cause, "parent_node", None) is not None:
-        return _unknown_key(text.split("'")[1], str(cause.key), cause.parent_node)
-    if text.startswith("Could not append to config. An item is already at '"):
-        key = text.split("'")[1]
-        return f"+{key}: the config already has {key}; set it without the +: {key}=<value> {see}."
-    return f"{' '.join(text.split())} {see}"
+    if str(err).startswith("Could not override '") and hasattr(cause, "parent_node"):
+        return _unknown_key(str(err).split("'")[1], str(cause.key), cause.parent_node)
+    lines = [line.strip() for line in f"{err}\n{cause or ''}".splitlines()]
+    text = "; ".join(line for line in lines if line and not line.startswith("object_type"))
+    return f"{text} (`python -m src.{config_name} --help` lists the settings)"
 
 
 def _unknown_key(key: str, missing: str, parent: DictConfig) -> str:
-    """`key` names `missing`, which `parent` lacks: the close keys, and the constructor
-    arguments a + adds."""
+    """`key` names `missing`, which `parent` lacks: the close keys, and arguments a + adds."""
     where = parent._get_full_key(None) or ""
-    rest = key[len(where) + len(missing) + (1 if where else 0) :]
-    if not where and (CONF_DIR / missing).is_dir():  # a group left unchosen (eval's data)
-        return (
-            f"{key}: no {missing} option is chosen, so there is no {key} to set. Choose one "
-            f"before it: {missing}={group_options(missing).replace(', ', '|')} {key}=<value>."
-        )
-    present = [str(k) for k in parent if not str(k).startswith("_") and k != "hydra"]
+    rest = key[len(where) + len(missing) + bool(where) :]
+    group = where or missing
+    if (CONF_DIR / group).is_dir() and not (where and len(parent)):  # unchosen (eval's data)
+        options = group_options(group).replace(", ", "|")
+        return f"{key}: no {group} option is chosen; choose one first: {group}={options} {key}=..."
+    present = [str(k) for k in parent if not rest or isinstance(parent[k], DictConfig)]
     addable = []
     with contextlib.suppress(Exception):  # no constructor (or an unknown one): no argument
         fields = dataclasses.fields(constructor_schema(parent["_target_"])) if not rest else ()
-        addable = [f.name for f in fields if f.name not in parent and f.name[0] != "_"]
-    if rest:  # the key goes deeper: only a group of settings can match
-        present = [k for k in present if isinstance(parent.get(k), DictConfig)]
-    close = difflib.get_close_matches(missing, present + addable, n=3, cutoff=0.6)
-    spelt = [("+" if c in addable else "") + ".".join(filter(None, (where, c))) + rest
-             for c in close]  # fmt: skip
-    hint = f" Did you mean {' or '.join(spelt)}?" if close else ""
-    keys = ", ".join(sorted(present))
-    return f"{key}: no such key.{hint} Keys under {where or 'the top level'}: {keys}."
+        addable = [f.name for f in fields if f.name not in parent]
+    spell = lambda c: ("+" if c in addable else "") + ".".join(filter(None, (where, c))) + rest  # noqa: E731
+    hint = did_you_mean(missing, present + addable, spell)
+    return f"{key}: no such key.{hint} (`--help` lists the settings; --cfg job all keys)"

@@ -11,9 +11,9 @@ import numpy as np
 from omegaconf import DictConfig
 
 from src.cli import hydra_entry
+from src.config import check
 from src.data.export import window_arrays
 from src.data.files import atomic_write
-from src.lit.config import check
 from src.lit.factory import ConfigError, build_test_data
 
 

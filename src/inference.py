@@ -16,6 +16,7 @@ from torch import Tensor, nn
 from src.data.layout import MAX_RADIANS, largest_rotation
 from src.data.normalization import Normalizer
 from src.lit.factory import load_trained
+from src.lit.parts import compiled
 
 
 class InferenceInputError(ValueError):
@@ -65,8 +66,7 @@ class MotionForecaster:
         fps: float = 25.0,
     ):
         """compile: True, False or "auto" (CUDA only); off by default: not reliably faster on CPU"""
-        if compile not in (True, False, "auto"):
-            raise ValueError(f"compile must be true, false or auto, got {compile!r}")
+        compiled(compile, cuda=False, name="compile")  # before the device's own errors
         # torch's own errors: an assertion at the first copy, or every device type listed.
         try:
             self.device = torch.device(device)
@@ -80,7 +80,7 @@ class MotionForecaster:
                 "use device='cpu'"
             )
         self.net = net.to(self.device).eval()
-        self.compiled = compile is True or (compile == "auto" and self.device.type == "cuda")
+        self.compiled = compiled(compile, cuda=self.device.type == "cuda", name="compile")
         self._run = compile_for_prediction(self.net) if self.compiled else self.net
         self._shapes: set[tuple[int, int]] = set()  # compiled (batch size, future_len)
         self._warned = False

@@ -14,8 +14,8 @@ import lightning as L
 import pandas as pd
 from omegaconf import DictConfig
 
+from src.config import check
 from src.data.files import atomic_write
-from src.lit.config import check
 from src.lit.factory import build_for_evaluation, build_trainer, git_commit
 from src.lit.run_folders import training_run_name
 from src.metrics.averages import averages

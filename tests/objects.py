@@ -20,9 +20,9 @@ import lightning as L
 import torch
 from omegaconf import DictConfig
 
+from src.config import check
 from src.data.errors import DataError  # noqa: F401  (what objects.validate may raise)
 from src.lit.compose import compose_config
-from src.lit.config import check
 from src.lit.factory import (  # noqa: F401  (ConfigError: what a refused config raises)
     ConfigError,
     build_datamodule,

@@ -1,5 +1,6 @@
 """Every config composes and instantiates; typos get Hydra's clear errors."""
 
+import re
 import typing
 from collections.abc import Sequence
 from pathlib import Path
@@ -10,7 +11,7 @@ import pytest
 from hydra.errors import ConfigCompositionException
 from omegaconf import OmegaConf
 
-from tests.conftest import CONF, compose_config, run_module
+from tests.conftest import CONF, compose_config, refused, run_module
 
 EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
@@ -63,17 +64,18 @@ def test_misspelt_key_is_rejected(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("override", "message"),
+    ("override", "named"),
     [
-        ("sampling.eta=1.5", r"sampling.eta=1.5 is outside \[0, 1\]"),
-        ("model.optimizer.lr=-0.1", r"^model.optimizer.lr=-0.1 must be > 0"),
-        ("model.net.C=60", "model.net.C=60 must be between 1 and data.observed_len=50"),
-        ("iterations=0", r"^iterations=0 must be >= 1\.$"),
-        ("sampling=linear", r"sampling.steps=0 must be a positive number"),  # iterations=0 too
+        ("sampling.eta=1.5", ["sampling.eta=1.5", "[0, 1]"]),
+        ("model.optimizer.lr=-0.1", ["model.optimizer", "learning rate: -0.1"]),  # torch's
+        ("model.optimizer.lr=0", ["model.optimizer.lr=0", "> 0"]),  # torch takes it
+        ("model.net.C=60", ["model.net.C=60", "observed_len=50"]),  # ConvSeq2Seq's own check
+        ("iterations=0", ["iterations=0", ">= 1"]),
+        ("sampling=linear", ["sampling.steps=0", "positive"]),  # with sampling.steps=0
     ],
 )
 def test_out_of_range_values_are_rejected_before_training(
-    override, message, tmp_path, synthetic_data_dir
+    override, named, tmp_path, synthetic_data_dir
 ):
     from src.lit.factory import ConfigError
     from src.lit.resume import prepare_training
@@ -82,8 +84,9 @@ def test_out_of_range_values_are_rejected_before_training(
     cfg = compose_config(
         "train", ["data=synthetic", override, *extra], tmp_path, synthetic_data_dir
     )
-    with pytest.raises(ConfigError, match=message):
+    with pytest.raises(ConfigError) as err:
         prepare_training(cfg, [], {})
+    refused(str(err.value), *named)
 
 
 def test_cli_reports_config_error_in_one_line(tmp_path, synthetic_data_dir):
@@ -95,7 +98,9 @@ def test_cli_reports_config_error_in_one_line(tmp_path, synthetic_data_dir):
         log_dir=tmp_path,
     )
     assert proc.returncode == 2
-    assert "sampling.eta=2" in proc.stderr and "Traceback" not in proc.stderr
+    (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error: ")]
+    refused(line, "sampling.eta=2", "[0, 1]")
+    assert "Traceback" not in proc.stderr
 
 
 def test_unwritable_output_folder_fails_before_training(tmp_path, synthetic_data_dir):
@@ -119,51 +124,64 @@ def test_runs_never_share_a_folder(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("override", "message"),
+    ("override", "named"),
     [
-        ("metrics.dim_rule=futur", "metrics.dim_rule='futur' must be future or window"),
-        ("protocol=srn", "protocol='srn' must be srnn, random, strided or null"),
+        ("metrics.dim_rule=futur", ["metrics.dim_rule='futur'", "future, window"]),
+        ("protocol=srn", ["protocol='srn'", "srnn, random, strided"]),
     ],
 )
-def test_eval_settings_are_validated(override, message, tmp_path):
-    from src.lit.config import check
+def test_eval_settings_are_validated(override, named, tmp_path):
+    from src.config import check
     from src.lit.factory import ConfigError
 
     cfg = compose_config("eval", ["model=zero_velocity", "data=h36m", override], tmp_path)
-    with pytest.raises(ConfigError, match=message):
+    with pytest.raises(ConfigError) as err:
         check(cfg, "eval")
+    refused(str(err.value), *named)
+
+
+WHOLE, NUMBER = "Integer|whole number", "Float|a number"
 
 
 @pytest.mark.parametrize(
-    ("overrides", "message"),
+    ("override", "kind"),
     [
-        (["iterations=abc"], r"iterations='abc' must be a whole number"),
-        (["iterations=1.5"], r"iterations=1.5 must be a whole number"),
-        (["val_every=abc"], r"val_every='abc' must be a whole number"),
-        (["seed=abc"], r"seed='abc' must be a whole number"),
-        (["seed=-3"], r"seed=-3 must be in \[0, 4294967295\]"),
-        (["seed=4294967296"], r"seed=4294967296 must be in"),
-        (["data.batch_size=abc"], r"data.batch_size='abc' must be a whole number"),
-        (["checkpoint_every=abc"], r"checkpoint_every='abc' must be a whole number"),
-        (["checkpoint_every=-1"], r"checkpoint_every=-1 must be >= 0"),
-        (["progress_every_s=abc"], r"progress_every_s='abc' must be a number"),
-        (["model.optimizer.lr=abc"], r"model.optimizer.lr='abc' must be a number"),
-        (["sampling.eta=abc"], r"sampling.eta='abc' must be a number"),
-        (["model.lr_decay_gamma=abc"], r"model.lr_decay_gamma='abc' must be a number"),
-        (["compile.enabled=maybe"], r"compile.enabled='maybe' must be true, false or auto"),
+        ("iterations=abc", WHOLE),
+        ("iterations=1.5", WHOLE),
+        ("val_every=abc", WHOLE),
+        ("seed=abc", WHOLE),
+        ("seed=-3", r"\[0, 4294967295\]"),
+        ("seed=4294967296", r"\[0, 4294967295\]"),
+        ("data.batch_size=abc", WHOLE),
+        ("checkpoint_every=abc", WHOLE),
+        ("checkpoint_every=-1", ">= 0"),
+        ("progress_every_s=abc", NUMBER),
+        ("model.optimizer.lr=abc", NUMBER),
+        ("sampling.eta=abc", NUMBER),
+        ("model.lr_decay_gamma=abc", NUMBER),
+        ("compile.enabled=maybe", "true, false or auto"),
     ],
 )
 def test_values_of_the_wrong_type_are_rejected_before_training(
-    overrides, message, tmp_path, synthetic_data_dir
+    override, kind, tmp_path, synthetic_data_dir
 ):
     """A word where a number belongs used to fail inside a comparison, with a traceback
-    (iterations=abc), or be truncated (iterations=1.5 ran as 1)."""
+    (iterations=abc), or be truncated (iterations=1.5 ran as 1). Hydra refuses a top-level
+    key's type while composing (src/config.py's schema), the checks the rest."""
+    from src.cli import hydra_error
     from src.lit.factory import ConfigError
     from src.lit.resume import prepare_training
 
-    cfg = compose_config("train", ["data=synthetic", *overrides], tmp_path, synthetic_data_dir)
-    with pytest.raises(ConfigError, match=message):
-        prepare_training(cfg, [], {})
+    key, value = override.split("=")
+    try:
+        cfg = compose_config("train", ["data=synthetic", override], tmp_path, synthetic_data_dir)
+        with pytest.raises(ConfigError) as err:
+            prepare_training(cfg, [], {})
+        message = str(err.value)
+    except ConfigCompositionException as hydra_err:
+        message = hydra_error(hydra_err, "train")
+    refused(message, key, value)
+    assert re.search(kind, message), message
 
 
 def test_cli_value_of_the_wrong_type_is_one_line(tmp_path, synthetic_data_dir):
@@ -175,8 +193,9 @@ def test_cli_value_of_the_wrong_type_is_one_line(tmp_path, synthetic_data_dir):
         log_dir=tmp_path,
     )
     assert proc.returncode == 2, proc.stderr[-2000:]
-    assert "iterations='abc' must be a whole number" in proc.stderr
-    assert "Traceback" not in proc.stderr
+    (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error: ")]
+    refused(line, "iterations=abc", "Integer")
+    assert "Traceback" not in proc.stderr and not list(tmp_path.rglob("*"))
 
 
 class EveryAnnotation:
@@ -206,15 +225,14 @@ class EveryAnnotation:
         ({"a": [2, 7], "b": [1, 2, 3], "c": [1], "d": [1, "x"], "e": [1, 2], "f": ["x"],
           "g": [3, 3], "h": [0.1, 2], "i": None, "j": 1, "k": "y", "m": [1, 2.5]}, None),
         ({"i": 3}, None),
-        ({"g": [2, "x"]}, "model.net.g[1]='x' must be a whole number."),
-        ({"g": [2]}, "model.net.g=[2] must be a list of 2 values."),
-        ({"m": ["x"]}, "model.net.m[0]='x' must be a number."),
-        ({"i": "no"}, "model.net.i='no' must be a whole number or null."),
-        ({"j": "x"}, "model.net.j='x' must be a number or null."),
-        ({"a": 2}, "model.net.a=2 must be a list."),
-        ({"e": "no"}, "model.net.e='no' must be true or false."),  # untyped: a boolean word
-        ({"kernel": [2, 7]}, f"model.net.kernel is not an argument of {__name__}."
-                             "EveryAnnotation, so it cannot be added."),
+        ({"g": [2, "x"]}, ["model.net.g[1]='x'", "a whole number"]),
+        ({"g": [2]}, ["model.net.g=[2]", "a list of 2 values"]),
+        ({"m": ["x"]}, ["model.net.m[0]='x'", "a number"]),
+        ({"i": "no"}, ["model.net.i='no'", "a whole number or null"]),
+        ({"j": "x"}, ["model.net.j='x'", "a number or null"]),
+        ({"a": 2}, ["model.net.a=2", "a list"]),
+        ({"e": "no"}, ["model.net.e='no'", "true or false"]),  # untyped: a boolean word
+        ({"kernel": [2, 7]}, ["model.net.kernel", f"argument of {__name__}.EveryAnnotation"]),
     ],
 )  # fmt: skip
 def test_every_annotation_a_constructor_can_carry_is_read(values, refusal, tmp_path):
@@ -224,7 +242,7 @@ def test_every_annotation_a_constructor_can_carry_is_read(values, refusal, tmp_p
     Sequence and a union are the constructor's to check)."""
     from omegaconf import open_dict
 
-    from src.lit.config import ConfigError, check_types
+    from src.config import ConfigError, check_types
 
     cfg = compose_config("train", [], tmp_path)
     with open_dict(cfg):
@@ -234,4 +252,4 @@ def test_every_annotation_a_constructor_can_carry_is_read(values, refusal, tmp_p
     else:
         with pytest.raises(ConfigError) as err:
             check_types(cfg, "train")
-        assert str(err.value) == refusal
+        refused(str(err.value), *refusal)

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from src.lit.factory import ConfigError
-from tests.conftest import CONF, run_module
+from tests.conftest import CONF, refused, run_module
 
 
 def _groups() -> list[str]:
@@ -72,9 +72,7 @@ def test_a_misspelt_option_of_every_group_is_refused_naming_the_options(
     wrong = _misspelt(options)
     err = _refusal(config_name, [f"{group}={wrong}", f"paths.log_dir={tmp_path}"], monkeypatch,
                    capsys)  # fmt: skip
-    assert err.startswith(f"error: {group}={wrong}: no such option of {config_name}."), err
-    listed = err.split("Choose one of: ")[1].rstrip(".").split(", ")
-    assert set(options) <= set(listed), err
+    refused(err, f"{group}={wrong}", ", ".join(options))
     assert not list(tmp_path.iterdir())
 
 
@@ -83,24 +81,19 @@ def test_a_misspelt_option_of_every_group_is_refused_naming_the_options(
     [
         # row 1: one word off; it used to train the default conv_s2s on H3.6M
         (["experiment=martinez2017_residual_sup"],
-         "error: experiment=martinez2017_residual_sup: no such option of train. Did you mean "
-         "experiment=martinez2017_res_sup"),
+         ["experiment=martinez2017_residual_sup", "experiment=martinez2017_res_sup"]),
         # row 2: a 20,000-iteration run (ETA 7 h) instead of a debug run; one default run
         # instead of a sweep
-        (["debug=fast", "data=synthetic"],
-         "error: debug=fast: no such option of train. Did you mean debug=fast_dev_run?"),
-        (["-m", "reproduce=paper"],
-         "error: reproduce=paper: no such option of train. Did you mean reproduce=papers"),
-        (["-m", "hparams_search=optuna"],
-         "error: hparams_search=optuna: no such option of train. Did you mean "
-         "hparams_search=conv_s2s_optuna? Choose one of: conv_s2s_optuna."),
+        (["debug=fast", "data=synthetic"], ["debug=fast", "debug=fast_dev_run"]),
+        (["-m", "reproduce=paper"], ["reproduce=paper", "reproduce=papers"]),
+        (["-m", "hparams_search=optuna"], ["hparams_search=optuna", "=conv_s2s_optuna"]),
     ],
 )  # fmt: skip
 def test_rows_1_2_misspelt_experiment_debug_and_sweeps_are_refused(
     argv, expected, tmp_path, monkeypatch, capsys
 ):
     err = _refusal("train", [*argv, f"paths.log_dir={tmp_path}"], monkeypatch, capsys)
-    assert err.startswith(expected), err
+    refused(err, *expected)
     assert not list(tmp_path.iterdir())  # no run folder, no sweep folder
 
 
@@ -172,7 +165,7 @@ def test_every_boolean_key_set_to_no_is_refused_or_false_never_true(
     encoder stayed (row 3), data.allow_partial=no trained on a partial copy (row 4)."""
     from omegaconf import OmegaConf
 
-    from src.lit.config import check
+    from src.config import check
     from src.lit.resume import prepare_training
     from tests.conftest import compose_config
 
@@ -183,46 +176,40 @@ def test_every_boolean_key_set_to_no_is_refused_or_false_never_true(
         else:
             check(cfg, config_name)
     except ConfigError as err:
-        assert str(err).startswith(f"{key}='no' must be true") and "false" in str(err), err
+        refused(str(err), f"{key}='no'", "true or false")
         return
     assert OmegaConf.select(cfg, key) is False
 
 
 @pytest.mark.parametrize(
-    ("overrides", "message"),
+    ("overrides", "named"),
     [
         # row 3: the ablation ran the full model (5.8 M parameters, as with true)
-        (["model.net.long_term=no"], "model.net.long_term='no' must be true or false."),
+        (["model.net.long_term=no"], ["model.net.long_term='no'", "true or false"]),
         # row 4: logged allow_partial=true and trained
-        (["data=cmu", "data.allow_partial=no"], "data.allow_partial='no' must be true or false."),
-        (["data.allow_partial=yes"], "data.allow_partial='yes' must be true or false."),
+        (["data=cmu", "data.allow_partial=no"], ["data.allow_partial='no'", "true or false"]),
+        (["data.allow_partial=yes"], ["data.allow_partial='yes'", "true or false"]),
         # a boolean word where the type is a union (true, false or "warn")
-        (["trainer.deterministic=off"], "trainer.deterministic='off' must be true or false."),
-        (["model.net.kernel=[2,x]"], "model.net.kernel[1]='x' must be a whole number."),
-        (["model.net.kernel=[2]"], "model.net.kernel=[2] must be a list of 2 values."),
-        (["model.net.dropout=0.5"], "model.net.dropout=0.5 must be a list."),
-        (["model.lr_decay_every=1e4"], "model.lr_decay_every=10000.0 must be a whole number."),
-        (["adversarial.enabled=1"], "adversarial.enabled=1 must be true or false."),
-        (["sampling=linear", "sampling.steps=abc"], "sampling.steps='abc' must be a whole "
-                                                    "number."),
-        (["+model.net.d_dec=1.5"], "model.net.d_dec=1.5 must be a whole number."),
-        (["model.optimizer._partial_=no"], "model.optimizer._partial_='no' must be true or "
-                                           "false."),
+        (["trainer.deterministic=off"], ["trainer.deterministic='off'", "true or false"]),
+        (["model.net.kernel=[2,x]"], ["model.net.kernel[1]='x'", "a whole number"]),
+        (["model.net.kernel=[2]"], ["model.net.kernel=[2]", "a list of 2 values"]),
+        (["model.net.dropout=0.5"], ["model.net.dropout=0.5", "a list"]),
+        (["model.lr_decay_every=1e4"], ["model.lr_decay_every=10000.0", "a whole number"]),
+        (["adversarial.enabled=1"], ["adversarial.enabled=1", "true or false"]),
+        (["sampling=linear", "sampling.steps=abc"], ["sampling.steps='abc'", "a whole number"]),
+        (["+model.net.d_dec=1.5"], ["model.net.d_dec=1.5", "a whole number"]),
+        (["model.optimizer._partial_=no"], ["model.optimizer._partial_='no'", "true or false"]),
         # a key added with + that nothing reads (Hydra adds it without a word)
-        (["+iteratons=100"], "iteratons: no such setting at the top level, so nothing would "
-                             "read it (a + adds only what the code takes). Did you mean "
-                             "iterations?"),
-        (["+model.lr_decay=3"], "model.lr_decay: no such setting under model"),
+        (["+iteratons=100"], ["iteratons", "iterations?"]),
+        (["+model.lr_decay=3"], ["model.lr_decay", "model.lr_decay_every"]),
     ],
 )  # fmt: skip
-def test_rows_3_4_values_of_the_wrong_type_are_refused_naming_the_type(
-    overrides, message, train_cfg
-):
+def test_rows_3_4_values_of_the_wrong_type_are_refused_naming_the_type(overrides, named, train_cfg):
     from src.lit.resume import prepare_training
 
     with pytest.raises(ConfigError) as err:
         prepare_training(train_cfg(*overrides), [], {})
-    assert str(err.value).startswith(message), str(err.value)
+    refused(str(err.value), *named)
 
 
 def test_row_3_long_term_false_builds_the_ablation(train_cfg, synthetic_data_dir):
@@ -241,9 +228,9 @@ def test_row_3_long_term_false_builds_the_ablation(train_cfg, synthetic_data_dir
 
 
 def test_every_key_of_every_shipped_config_has_a_declared_type(tmp_path):
-    """One declaration per key (src/lit/config.py, or the constructor a node instantiates): a
+    """One declaration per key (src/config.py, or the constructor a node instantiates): a
     key added to a config without a type is caught here, not by a user."""
-    from src.lit.config import check_types
+    from src.config import check_types
     from tests.conftest import compose_config
 
     compositions = [("train", [f"{group}={option}"]) for group in _groups()
@@ -603,7 +590,7 @@ def _as_composable(args: list[str]) -> list[str]:
 def test_row_13_every_readme_command_of_the_entry_points_composes_and_type_checks(tmp_path):
     import shlex
 
-    from src.lit.config import check_types
+    from src.config import check_types
     from tests.conftest import compose_config
 
     _, lines = _readme_command_lines()

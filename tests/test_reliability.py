@@ -18,7 +18,7 @@ from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoi
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
 from src.lit.resume import prepare_training
-from tests.conftest import compose_config, run_module
+from tests.conftest import compose_config, refused, run_module
 from tests.test_resume import TINY
 
 # H3.6M's own datamodule on the synthetic files (subject 1 trains, S5 tests): unlike the
@@ -331,25 +331,26 @@ def test_same_command_twice_gives_two_run_folders(tmp_path, synthetic_data_dir):
 
 # ------------------------------------------------------------------------------ config errors
 @pytest.mark.parametrize(
-    ("overrides", "message"),
+    ("overrides", "named"),
     [
-        (["metrics.dim_rule=windows"], "metrics.dim_rule='windows' must be future or window"),
-        (["model.lambda_2=-1"], r"model.lambda_2=-1 must be >= 0"),
-        (["adversarial.lambda_adv=-0.1"], r"adversarial.lambda_adv=-0.1 must be >= 0"),
-        (["adversarial.lambda_2=-1"], r"adversarial.lambda_2=-1 must be >= 0"),
-        (["model.lr_decay_every=0"], r"model.lr_decay_every=0 must be >= 1"),
-        (["model.lr_decay_gamma=0"], r"model.lr_decay_gamma=0 must be in \(0, 1\]"),
-        (["model.grad_clip_norm=-5"], r"model.grad_clip_norm=-5 must be > 0"),
+        (["metrics.dim_rule=windows"], ["metrics.dim_rule='windows'", "future, window"]),
+        (["model.lambda_2=-1"], ["model.lambda_2=-1", ">= 0"]),
+        (["adversarial.lambda_adv=-0.1"], ["adversarial.lambda_adv=-0.1", ">= 0"]),
+        (["adversarial.lambda_2=-1"], ["adversarial.lambda_2=-1", ">= 0"]),
+        (["model.lr_decay_every=0"], ["model.lr_decay_every=0", ">= 1"]),
+        (["model.lr_decay_gamma=0"], ["model.lr_decay_gamma=0", "(0, 1]"]),
+        (["model.grad_clip_norm=-5"], ["model.grad_clip_norm=-5", "> 0"]),
         # the constructors' own refusals, from the objects built before the run starts
-        (["sampling=linear", "sampling.steps=0"], r"sampling.steps=0 must be a positive number"),
-        (["sampling=inverse_sigmoid", "sampling.k=0.5"], r"sampling.k=0.5 must be >= 1"),
-        (["data.eval_protocol=srn"], r"unknown data.eval_protocol 'srn'; valid: srnn, random"),
+        (["sampling=linear", "sampling.steps=0"], ["sampling.steps=0", "positive"]),
+        (["sampling=inverse_sigmoid", "sampling.k=0.5"], ["sampling.k=0.5", ">= 1"]),
+        (["data.eval_protocol=srn"], ["data.eval_protocol 'srn'", "srnn, random"]),
     ],
 )
-def test_more_out_of_range_values_are_rejected(overrides, message, tmp_path, synthetic_data_dir):
+def test_more_out_of_range_values_are_rejected(overrides, named, tmp_path, synthetic_data_dir):
     cfg = compose_config("train", ["data=synthetic", *overrides], tmp_path, synthetic_data_dir)
-    with pytest.raises((ConfigError, DataError), match=message):
+    with pytest.raises((ConfigError, DataError)) as err:
         prepare_training(cfg, [], {})
+    refused(str(err.value), *named)
 
 
 def test_misspelt_action_lists_the_valid_ones_before_training(h36m_dir, tmp_path):

@@ -81,6 +81,7 @@ def test_every_test_named_in_the_guarantees_exists():
 LAYERS = [
     ("src.data",),
     ("src.models", "src.metrics", "src.plots"),
+    ("src.config",),
     ("src.lit",),
     ("src.reporting",),
 ]

@@ -18,9 +18,9 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
+from src.config import check_schedule
 from src.lit.checkpoints import CheckpointError
 from src.lit.compose import compose_config
-from src.lit.config import check_schedule
 from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
 from src.lit.resume import describe, restore_run
@@ -675,7 +675,7 @@ def test_resume_with_a_length_that_does_not_fit_suggests_lengths_only(tmp_path, 
 def test_trainer_keys_the_schedule_sets_are_refused_naming_iterations(override, train_cfg):
     """`+trainer.max_steps=N` used to be accepted and recorded in config.yaml while the run
     trained `iterations`; each Trainer key the iteration schedule sets is refused, naming it."""
-    from src.lit.config import check
+    from src.config import check
 
     key, _, value = override.lstrip("+").partition("=")
     with pytest.raises(ConfigError) as err:

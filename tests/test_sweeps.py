@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from omegaconf import OmegaConf
 
-from tests.conftest import run_in_one_process, run_module
+from tests.conftest import refused, run_in_one_process, run_module
 
 # A timestamped sweep folder: a second sweep gets its own, nothing is written over.
 SWEEP_DIR = re.compile(r"\d{4}-\d{2}-\d{2}_\d{2}-\d{2}-\d{2}")
@@ -151,6 +151,19 @@ def _error_line(proc) -> str:
     assert proc.returncode == 2, proc.stderr[-3000:]
     (line,) = [x for x in proc.stderr.splitlines() if x.startswith("error:")]
     return line
+
+
+def test_a_job_hydra_cannot_compose_refuses_the_sweep_leaving_no_folder(
+    tmp_path, synthetic_data_dir
+):
+    """`-m iterations=2,abc`: Hydra refuses job 1's type (src/config.py's schema); the sweep
+    used to be refused only once its folder and multirun.yaml were written."""
+    (proc,) = run_in_one_process(
+        ["src.train", MULTIRUN, "data=synthetic", "val_every=2", "iterations=2,abc"],
+        data_dir=synthetic_data_dir, log_dir=tmp_path,
+    )  # fmt: skip
+    refused(_error_line(proc), "job 1", "iterations=abc", "Integer")
+    assert not list(tmp_path.rglob("*"))
 
 
 def test_a_bad_value_of_any_job_refuses_the_sweep_before_its_first_job(

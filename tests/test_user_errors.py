@@ -16,7 +16,14 @@ from omegaconf import OmegaConf
 
 from src.data.errors import DataError
 from src.lit.factory import ConfigError
-from tests.conftest import CONF, compose_config, run_in_one_process, run_interrupted, run_module
+from tests.conftest import (
+    CONF,
+    compose_config,
+    refused,
+    run_in_one_process,
+    run_interrupted,
+    run_module,
+)
 
 
 def _error_line(proc) -> str:
@@ -223,12 +230,8 @@ def test_cli_misspelt_key_names_the_close_matches(tmp_path, synthetic_data_dir):
            "trainer.max_step=3"] for e in entries),
         data_dir=synthetic_data_dir, log_dir=tmp_path,
     )  # fmt: skip
-    for entry, proc in zip(entries, procs, strict=True):
-        line = _error_line(proc)
-        assert line.startswith(
-            "error: trainer.max_step: no such key. Did you mean +trainer.max_steps"
-        ), entry
-        assert "Keys under trainer: accelerator, " in line, entry
+    for proc in procs:
+        refused(_error_line(proc), "trainer.max_step", "+trainer.max_steps")
     assert not list(tmp_path.rglob("checkpoints"))
 
 
@@ -239,27 +242,18 @@ def test_misspelt_key_in_train_config_names_the_close_matches(monkeypatch, capsy
     called = []
     entry = hydra_entry("train")(lambda cfg: called.append(cfg))
     for argv, expected in [
-        (
-            ["trainr.max_steps=3"],
-            "error: trainr.max_steps: no such key. Did you mean trainer.max_steps?",
-        ),
-        (
-            ["model.net.kernl=[3,3]"],
-            "error: model.net.kernl: no such key. Did you mean model.net.kernel?",
-        ),
-        (["dta=cmu"], "error: dta: no such key. Did you mean data?"),
-        (
-            ["data=h36n"],
-            "error: data=h36n: no such option of train. Did you mean data=h36m? "
-            "Choose one of: cmu, h36m, synthetic.",
-        ),
+        (["trainr.max_steps=3"], ["trainr.max_steps", "trainer.max_steps?"]),
+        (["model.net.kernl=[3,3]"], ["model.net.kernl", "model.net.kernel?"]),
+        (["dta=cmu"], ["dta", "data?"]),
+        (["data=h36n"], ["data=h36n", "data=h36m?", "cmu, h36m, synthetic"]),
     ]:
         monkeypatch.setattr(sys, "argv", ["src.train", *argv])
         with pytest.raises(SystemExit) as info:
             entry()
         assert info.value.code == 2
         err = capsys.readouterr().err
-        assert err.startswith(expected) and err.count("\n") == 1, err
+        refused(err, *expected)
+        assert err.startswith("error: ") and err.count("\n") == 1, err
     assert not called
 
 
@@ -277,10 +271,7 @@ def test_key_of_a_group_left_unchosen_says_to_choose_it(entry, monkeypatch, caps
     assert info.value.code == 2 and not called
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
-    assert err.startswith(
-        "error: data.batch_size: no data option is chosen, so there is no data.batch_size to "
-        "set. Choose one before it: data=cmu|h36m|synthetic data.batch_size=<value>"
-    ), err
+    refused(err, "data.batch_size", "data=cmu|h36m|synthetic")
 
 
 @pytest.mark.parametrize("entry", ["eval", "visualize"])
@@ -354,10 +345,11 @@ def test_allow_partial_defaults_from_the_environment(value, expected, tmp_path, 
         cfg = compose_config(name, overrides, tmp_path)
         assert cfg.data.allow_partial is expected and cfg.paths.allow_partial is expected
     monkeypatch.setenv("MOTION_ALLOW_PARTIAL", "maybe")
-    from src.lit.config import check
+    from src.config import check
 
-    with pytest.raises(ConfigError, match=r"^paths.allow_partial='maybe' must be true or false"):
+    with pytest.raises(ConfigError) as err:
         check(compose_config("train", [], tmp_path), "train")
+    refused(str(err.value), "paths.allow_partial='maybe'", "true or false")
 
 
 def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic_data_dir):
@@ -368,11 +360,7 @@ def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic
         data_dir=synthetic_data_dir,
         log_dir=tmp_path,
     )
-    line = _error_line(proc)
-    assert line.startswith(
-        "error: trainer.max_step is not an argument of lightning.pytorch.trainer.Trainer, so it "
-        "cannot be added. Did you mean trainer.max_steps"
-    )
+    refused(_error_line(proc), "trainer.max_step", "lightning.pytorch.trainer.Trainer", "max_steps")
 
 
 @pytest.mark.parametrize(
@@ -395,7 +383,7 @@ def test_added_keys_are_checked_against_their_constructor(override, message, tra
 
 @pytest.mark.parametrize("experiment", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
 def test_every_shipped_config_passes_the_constructor_check(experiment, train_cfg):
-    from src.lit.config import check
+    from src.config import check
 
     check(train_cfg(f"experiment={experiment}"), "train")
 
@@ -425,8 +413,8 @@ def test_eval_and_visualize_help_list_only_what_they_accept(entry, help_text):
         net = OmegaConf.load(CONF / "model" / f"{model}.yaml").net._target_
         assert hydra.utils.get_class(net).trainable is False
     assert set(listed["trainer"].split(", ")) <= _options("trainer")
-    for refused in ("experiment", "debug", "hparams_search"):
-        assert refused not in text
+    for group in ("experiment", "debug", "hparams_search"):
+        assert group not in text
     assert "ckpt_path=" in text
 
 

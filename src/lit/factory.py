@@ -6,14 +6,15 @@ from __future__ import annotations
 import subprocess
 from pathlib import Path
 
+import hydra
 import torch
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
+from src.config import ConfigError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_compatible, read_checkpoint
-from src.lit.config import ConfigError
-from src.lit.parts import data_facts, instantiate, plain
+from src.lit.parts import compiled, data_facts, instantiate, plain
 from src.lit.predictor import MotionPredictor
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -34,18 +35,30 @@ build_trainer = instantiate
 
 
 def build_parts(cfg: DictConfig) -> None:
-    """Build, and drop, the data module, eta schedule and optimisers (on a stand-in parameter):
-    their constructors' refusals come before the run folder is made and any data is read."""
+    """Build, and drop, the data module, eta schedule and optimisers (on a stand-in parameter),
+    and run the network's own argument checks that need no data (`check_arguments`): their
+    refusals come before the run folder is made and any data is read."""
     build_datamodule(cfg.data)
+    if cfg.get("compile") is not None:
+        compiled(cfg.compile.enabled, cuda=False)
     if cfg.get("sampling"):
         instantiate(cfg.sampling)
-    for key in ("model.optimizer", "adversarial.optimizer"):  # lr > 0 is checked for both
+    net = OmegaConf.select(cfg, "model.net")
+    checks = getattr(hydra.utils.get_class(net._target_), "check_arguments", None) if net else None
+    if checks is not None:
+        try:
+            checks(**{**plain(net), "observed_len": cfg.data.observed_len})
+        except ValueError as err:
+            raise ConfigError(f"model.net.{err}") from None
+    for key in ("model.optimizer", "adversarial.optimizer"):
         node = OmegaConf.select(cfg, key)
         if node is not None:
             try:
-                instantiate(node)([torch.nn.Parameter(torch.zeros(1))])
-            except ValueError as err:  # torch.optim's refusal of an argument
+                optimizer = instantiate(node)([torch.nn.Parameter(torch.zeros(1))])
+            except ValueError as err:  # torch.optim's refusal of an argument (lr < 0, ...)
                 raise ConfigError(f"{key}: {err}") from None
+            if not optimizer.defaults["lr"] > 0:  # torch takes 0, which trains nothing
+                raise ConfigError(f"{key}.lr={node.lr} must be > 0 (with 0 nothing is trained).")
 
 
 def build_datamodule(data_cfg: DictConfig, normalizer: Normalizer | None = None):

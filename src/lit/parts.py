@@ -13,9 +13,9 @@ from hydra.errors import InstantiationException
 from lightning.fabric.utilities.exceptions import MisconfigurationException
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from src.config import ConfigError
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
-from src.lit.config import ConfigError
 
 
 def instantiate(node, **kwargs):
@@ -29,6 +29,13 @@ def instantiate(node, **kwargs):
         if isinstance(cause, (ValueError, MisconfigurationException)):
             raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
         raise
+
+
+def compiled(setting: Any, cuda: bool, name: str = "compile.enabled") -> bool:
+    """Whether a compile setting (true, false or auto: on a CUDA device only) compiles here."""
+    if not (isinstance(setting, bool) or setting == "auto"):
+        raise ConfigError(f"{name}={setting!r} must be true, false or auto (auto: on CUDA only).")
+    return setting is True or (setting == "auto" and cuda)
 
 
 def plain(node) -> Any:
@@ -66,8 +73,11 @@ def network(node, facts: dict[str, Any], normalizer: Normalizer, **extra):
     kwargs: dict[str, Any] = {
         "pose_dim": len(facts["used"]), "num_actions": len(facts["actions"]), **extra
     }  # fmt: skip
-    if "normalizer" in inspect.signature(hydra.utils.get_class(node["_target_"])).parameters:
+    params = inspect.signature(hydra.utils.get_class(node["_target_"])).parameters
+    if "normalizer" in params:
         kwargs["normalizer"] = normalizer
+    if "observed_len" in params:  # ConvSeq2Seq checks its C against it
+        kwargs["observed_len"] = facts["observed_len"]
     if node.get("padding") == "auto":
         kwargs["padding"] = facts["conv_padding"]
     return instantiate(node, **kwargs, _convert_="all")

@@ -20,7 +20,7 @@ from torch import Tensor, nn
 
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import upgrade
-from src.lit.parts import instantiate, network, normalizer_of, plain
+from src.lit.parts import compiled, instantiate, network, normalizer_of, plain
 from src.metrics.averages import averages
 from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
 from src.metrics.kinematics import Skeleton, moving_joints
@@ -102,11 +102,9 @@ class MotionPredictor(L.LightningModule):
             raise ValueError(f"untrained_actions {sorted(unknown)} are not among {self.actions}")
         self.untrained_actions = [a for a in self.actions if a in untrained]
         self.run_info: dict[str, Any] = {}  # commit, config, missing files: in checkpoints
-        # torch.compile the two objectives (True; "auto": on a CUDA device only).
-        self.compile_step = compile.get("enabled", False)
+        self.compile_step = compile.get("enabled", False)  # torch.compile the two objectives
         self.compile_mode = compile.get("mode", "reduce-overhead")
-        if self.compile_step not in (True, False, "auto"):
-            raise ValueError(f"compile must be true, false or auto (on CUDA), got {compile!r}")
+        compiled(self.compile_step, cuda=False)  # a misspelt setting: refused here
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
@@ -154,16 +152,6 @@ class MotionPredictor(L.LightningModule):
                 "is added to unscaled; use trainer.precision=32 (default) or bf16-mixed"
             )
 
-    def _eta(self) -> float:
-        # global_step: the iterations done (the Trainer's count, a host integer).
-        eta = 1.0 if self.eta_schedule is None else float(self.eta_schedule(self.global_step))
-        if not 0.0 <= eta <= 1.0:  # checked here: the compiled step's tensor eta is not read
-            raise ValueError(
-                f"the eta schedule gave {eta} at iteration {self.global_step}; eta must lie "
-                "in [0, 1]"
-            )
-        return eta
-
     def _sequence(self, observed: Tensor, future: Tensor, fake: Tensor | None = None) -> Tensor:
         """The 75 frames D judges: observed, then `future` (real) or the prediction `fake`, with the
         first future frame in the last observed slot if `reference_fake_slot` (protocol §6.5)."""
@@ -209,8 +197,7 @@ class MotionPredictor(L.LightningModule):
         if self._compiled is None:
             # auto: on one CUDA device (compiling the inner module of DDP is untested).
             single = self._trainer is None or self.trainer.world_size == 1
-            auto = self.device.type == "cuda" and single
-            on = self.compile_step is True or (self.compile_step == "auto" and auto)
+            on = compiled(self.compile_step, cuda=self.device.type == "cuda" and single)
             d, g = self._d_objective, self._g_objective
             if on:
                 # A fresh compiler state per fit: torch refuses the 9th graph of a function
@@ -231,7 +218,8 @@ class MotionPredictor(L.LightningModule):
                 "datamodule's with data.discriminator_windows=true; this one has keys "
                 f"{sorted(batch)}. Set data.discriminator_windows=true or adversarial=none."
             )
-        eta_in = eta = self._eta()
+        # In [0, 1]: each schedule checks its own arguments (a network, a float eta).
+        eta_in = eta = float(self.eta_schedule(self.global_step)) if self.eta_schedule else 1.0
         compiled, d_objective, g_objective = self._objectives()
         if compiled:
             # One training iteration: outputs of the previous one's CUDA graphs may be reused.

@@ -13,8 +13,8 @@ from typing import Any
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from src.config import ConfigError, check
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
-from src.lit.config import ConfigError, check
 from src.lit.factory import build_parts
 
 # "hydra": in a config composed in-process (and so in the config.yaml of such a run).

@@ -13,6 +13,7 @@ import re
 import shutil
 import sys
 import time
+from dataclasses import is_dataclass
 from pathlib import Path
 from typing import NoReturn
 
@@ -25,10 +26,10 @@ from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf, open_dict, read_write
 
+from src.config import ConfigError
 from src.data.errors import DataError
 from src.data.files import claim_folder
 from src.lit.checkpoints import CheckpointError
-from src.lit.config import ConfigError
 from src.lit.factory import PROJECT_ROOT
 from src.lit.predictor import NonFiniteLossError
 from src.lit.resume import Resume, prepare_training
@@ -215,7 +216,11 @@ class PrepareRun(Callback):
         given = {o.split("=", 1)[0].lstrip("+~") for o in overrides}
         with read_write(config), open_dict(config):
             for key, value in OmegaConf.to_container(restored, resolve=False).items():
-                config[key] = value  # every key of `config` but hydra
+                node = config._get_node(key)  # every key of `config` but hydra
+                if isinstance(node, DictConfig) and is_dataclass(OmegaConf.get_type(node)):
+                    node.merge_with(value)  # typed by src/config.py: its keys are fixed
+                else:
+                    config[key] = value
             for group, option in (resume.run_choices or {}).items():
                 if group in config.hydra.runtime.choices and group not in given:
                     config.hydra.runtime.choices[group] = option
@@ -268,10 +273,13 @@ def check_sweep(config: DictConfig) -> None:
     for num, overrides in enumerate(jobs):
         try:
             job = loader.load_sweep_config(config, list(overrides))
-        except HydraException:
-            # The basic sweeper composes each job again before the first starts and the CLI
-            # words its error; Optuna's fixed values composed already (the sweep's config).
-            return
+        except HydraException as err:  # Hydra's refusal of a value (its type: src/config.py)
+            if not expanded:  # Optuna's fixed values composed already (the sweep's config)
+                return
+            text = f"{err} {err.__cause__ or ''}".split("Config search path:")[0].split()
+            words = " ".join(x for x in text if not x.startswith("object_type"))
+            refuse(f"job {num} of the sweep ({' '.join(overrides)}) cannot be composed, so no "
+                   f"job of the sweep was started: {words}")  # fmt: skip
         task = OmegaConf.masked_copy(job, [k for k in job if k != "hydra"])
         choices = OmegaConf.to_container(job.hydra.runtime.choices)
         try:

@@ -36,6 +36,15 @@ class ConvSeq2Seq(nn.Module):
     d_dec the spatial decoder's hidden width (512, paper §3.2).
     """
 
+    @staticmethod
+    def check_arguments(C: int = 20, observed_len: int = 50, **_) -> None:
+        """The checks that need no data (src.lit.factory.build_parts runs them first)."""
+        if not 1 <= C <= observed_len:
+            raise ValueError(
+                f"C={C} must lie in [1, observed_len={observed_len}]: the short-term window "
+                f"is cut from the observed frames"
+            )
+
     def __init__(
         self,
         pose_dim: int,
@@ -53,11 +62,7 @@ class ConvSeq2Seq(nn.Module):
         d_dec: int = 512,
     ):
         super().__init__()
-        if not 1 <= C <= observed_len:
-            raise ValueError(
-                f"C={C} must lie in [1, observed_len={observed_len}]: the short-term window "
-                f"is cut from the observed frames"
-            )
+        self.check_arguments(C=C, observed_len=observed_len)
         try:
             conv_shapes(C, pose_dim, nf, tuple(kernel), padding)
         except ValueError as e:

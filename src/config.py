@@ -1,9 +1,8 @@
-"""The types of the entry points' configs and the checks of a composed config: a node Hydra
-instantiates (`_target_`) is typed by its constructor's signature (hydra-zen's `builds`), every
-other key by the dataclasses below; OmegaConf checks both, this module the ranges (`within`) of
-keys no constructor reads and a few combinations."""
+"""The entry points' top-level keys, declared once: dataclasses in Hydra's ConfigStore, the
+schema of conf/<entry>.yaml, so Hydra refuses an unknown or wrongly typed key while composing.
+A `_target_` node is typed by its constructor's signature (hydra-zen), which checks its ranges;
+`check` adds the ranges of the keys no constructor reads and the invariants across keys."""
 
-import contextlib
 import dataclasses
 import difflib
 import functools
@@ -11,15 +10,15 @@ import inspect
 import types
 import typing
 from dataclasses import dataclass, field
-from enum import Enum
 from typing import Any, Union
 
 import hydra
 import torch
+from hydra.core.config_store import ConfigStore
 from hydra_zen import BuildsFn
-from omegaconf import DictConfig, ListConfig, OmegaConf
-from omegaconf.errors import ConfigKeyError, OmegaConfBaseException
-from omegaconf.nodes import AnyNode, BooleanNode, EnumNode, FloatNode, IntegerNode, StringNode
+from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
+from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode
 
 from src.data.base import EVAL_PROTOCOLS
 from src.metrics.euler_error import DIM_RULES
@@ -30,113 +29,121 @@ class ConfigError(ValueError):
 
 
 def within(low: float, high: float | None = None, *, above: bool = False) -> Any:
-    """A field whose value must lie in [low, high] ((low, high] with above=True)."""
-    return field(metadata={"range": (low, high, above)})
+    """A key whose value must lie in [low, high] ((low, high] with above=True)."""
+    return field(default=MISSING, metadata={"range": (low, high, above)})
 
 
-DimRule = Enum("DimRule", DIM_RULES)
-Protocol = Enum("Protocol", EVAL_PROTOCOLS)
-Format = Enum("Format", ("gif", "mp4"))
+def one_of(*names: str | None) -> Any:
+    return field(default=MISSING, metadata={"choices": names})
 
 
 @dataclass
 class Paths:
-    root_dir: str
-    archive_dir: str | None
-    data_dir: str
-    allow_partial: bool  # this machine's data copy lacks files (MOTION_ALLOW_PARTIAL)
-    log_dir: str
-    output_dir: str
+    root_dir: str = MISSING
+    archive_dir: str | None = MISSING
+    data_dir: str = MISSING
+    allow_partial: bool = MISSING  # this machine's data copy lacks files (MOTION_ALLOW_PARTIAL)
+    log_dir: str = MISSING
+    output_dir: str = MISSING
 
 
 @dataclass
-class Model:  # read by src.lit.factory.build_module
-    name: str
-    net: Any  # typed by its _target_, as the optimiser
-    optimizer: Any
+class Model:  # conf/model/'s keys; src.lit.predictor reads those no constructor reads
+    name: str = MISSING
+    net: Any = MISSING  # typed by its _target_, as the optimiser
+    optimizer: Any = None
+    published: Any = None  # src.reporting.published.published_for
     lr_decay_every: int = within(1)
     lr_decay_gamma: float = within(0, 1, above=True)
     lambda_2: float = within(0)
     grad_clip_norm: float | None = within(0, above=True)
-    published: Any  # src.reporting.published.published_for
 
 
 @dataclass
-class Adversarial:  # read by src.lit.factory.build_module
-    enabled: bool
+class Adversarial:  # conf/adversarial/'s, as Model's
+    enabled: bool = MISSING
     lambda_adv: float = within(0)
     lambda_2: float = within(0)
-    reference_fake_slot: bool
-    discriminator: Any
-    optimizer: Any
+    reference_fake_slot: bool = MISSING
+    discriminator: Any = None
+    optimizer: Any = None
+
+
+GROUPS = {"model": Model, "adversarial": Adversarial}  # typed by `check`: their options differ
 
 
 @dataclass
 class Metrics:
-    dim_rule: DimRule
+    dim_rule: str = one_of(*DIM_RULES)
 
 
 @dataclass
 class Compile:
-    enabled: Any  # true, false or auto: checked by name below
-    mode: str  # torch.compile's
+    enabled: Any = MISSING  # true, false or auto: src.lit.predictor.compiled reads it
+    mode: str = MISSING  # torch.compile's
 
 
 @dataclass
 class Common:  # the keys of every entry point's config
-    task_name: str
-    run_name: str
+    task_name: str = MISSING
+    run_name: str = MISSING
     seed: int | None = within(0, 2**32 - 1)  # numpy's seeds
     val_every: int = within(1)
-    ckpt_path: str | None
-    paths: Paths
-    data: Any  # null in eval and visualize until chosen (a checkpoint brings its own)
-    model: Model | None
-    sampling: Any
-    adversarial: Adversarial | None
-    trainer: Any
-    metrics: Metrics
+    paths: Paths = MISSING
+    data: Any = None  # null in eval and visualize until chosen (a checkpoint brings its own)
 
 
 @dataclass
-class TrainConfig(Common):  # conf/train.yaml
+class Evaluated(Common):  # ... of those that build a model
+    ckpt_path: str | None = MISSING
+    model: Any = None
+    sampling: Any = None
+    adversarial: Any = None
+    trainer: Any = MISSING
+    metrics: Metrics = MISSING
+
+
+@dataclass
+class TrainConfig(Evaluated):  # conf/train.yaml
     iterations: int = within(1)
-    resume: str | None
+    resume: str | None = MISSING
     checkpoint_every: int = within(0)
     media_every: int = within(0)
     progress_every_s: float | None = within(0)
-    compile: Compile
+    compile: Compile = MISSING
 
 
 @dataclass
-class EvalConfig(Common):  # conf/eval.yaml
-    protocol: Protocol | None
-    predictions: str | None  # a .npz of predictions from any code (src/scoring.py)
-    published: str | None  # PAPER:METHOD or none
+class EvalConfig(Evaluated):  # conf/eval.yaml
+    protocol: str | None = one_of(*EVAL_PROTOCOLS, None)
+    predictions: str | None = MISSING  # a .npz of predictions from any code (src/scoring.py)
+    published: str | None = MISSING  # PAPER:METHOD or none
 
 
 @dataclass
 class ExportWindowsConfig(Common):  # conf/export_windows.yaml
-    protocol: Protocol | None
-    out: str | None
+    protocol: str = one_of(*EVAL_PROTOCOLS)
+    out: str | None = MISSING
 
 
 @dataclass
-class VisualizeConfig(Common):  # conf/visualize.yaml
-    action: str
+class VisualizeConfig(Evaluated):  # conf/visualize.yaml
+    action: str = MISSING
     window: int = within(0)
-    baseline: bool
-    format: Format
+    baseline: bool = MISSING
+    format: str = one_of("gif", "mp4")
     observed_shown: int = within(1)
     strip_step: int = within(1)
 
 
 SCHEMAS = {"train": TrainConfig, "eval": EvalConfig, "visualize": VisualizeConfig,
            "export_windows": ExportWindowsConfig}  # fmt: skip
+for _name, _schema in SCHEMAS.items():  # conf/<name>.yaml's defaults list starts with it
+    ConfigStore.instance().store(name=f"{_name}_schema", node=_schema)
 
-# Trainer keys that the iteration schedule sets or would break (src.train hands iterations and
-# val_every to the Trainer as max_steps and val_check_interval): another value would be recorded
-# in the run's config.yaml and not be what ran. The values of "not set".
+# Trainer keys that the iteration schedule sets (src.train hands iterations and val_every to
+# the Trainer as max_steps and val_check_interval): another value would be recorded in the
+# run's config.yaml and not be what ran. The values of "not set".
 SCHEDULE_OWNS = {"max_steps": -1, "max_epochs": None, "min_steps": None, "min_epochs": None,
                  "val_check_interval": None, "check_val_every_n_epoch": None,
                  "limit_train_batches": None}  # fmt: skip
@@ -145,8 +152,7 @@ BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 class _Builds(BuildsFn):
-    """hydra-zen's `builds`, reading `int | None` as Optional[int], and a union without what a
-    config cannot hold (`float | Tensor` is a float)."""
+    """hydra-zen's `builds`; `int | None` is Optional[int], `float | Tensor` a float."""
 
     @classmethod
     def _sanitized_type(cls, type_, **kwargs):
@@ -172,70 +178,58 @@ def constructor_schema(target: str, partial: bool = False) -> type:
 
 def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
-    nothing reads. `entry`: a key of SCHEMAS."""
+    nothing reads: the top level, the groups, the constructors' arguments as written."""
     plain, raw = _resolved(cfg), OmegaConf.to_container(cfg, resolve=False)
-    _check_node(plain, SCHEMAS[entry], "")
-    # Values as written first, copies (${model.net.kernel}) after: named where they were set.
-    for copies in (False, True):
-        for path, node in _targets(plain, ""):
-            try:
-                schema = constructor_schema(node["_target_"], "_partial_" in node)
-            except Exception as err:  # noqa: BLE001 (ImportError, AttributeError, ...)
-                target = node["_target_"]
-                raise ConfigError(f"{path}._target_={target} cannot be imported: {err}") from None
-            written = functools.reduce(lambda n, k: n.get(k) or {}, path.split("."), raw)
-            skip = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
-            skip |= set() if copies else {k for k, v in written.items() if "${" in str(v)}
-            _check_node({k: v for k, v in node.items() if k not in skip}, schema, path)
+    _check_node(plain, SCHEMAS[entry], "")  # Hydra checked it, but not a resume's config
+    for key, schema in GROUPS.items():
+        if isinstance(plain.get(key), dict):
+            _check_node(plain[key], schema, key)
+    for path, node in _targets(plain, ""):
+        try:
+            schema = constructor_schema(node["_target_"], "_partial_" in node)
+        except Exception as err:  # noqa: BLE001 (ImportError, AttributeError, ...)
+            target = node["_target_"]
+            raise ConfigError(f"{path}._target_={target} cannot be imported: {err}") from None
+        # A copy (${model.net.kernel}) is checked, and named, where it was set.
+        written = functools.reduce(lambda n, k: n.get(k) or {}, path.split("."), raw)
+        skip = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
+        skip |= {k for k, v in written.items() if "${" in str(v)}
+        _check_node({k: v for k, v in node.items() if k not in skip}, schema, path)
 
 
 def _check_node(plain: dict, schema: type, path: str) -> None:
     try:
         typed = OmegaConf.merge(OmegaConf.structured(schema), plain)
     except OmegaConfBaseException as err:
-        raise ConfigError(_reworded(err, path)) from None
+        key = _join(path, err.full_key)
+        if isinstance(err, ConfigKeyError) and err.parent_node is not None:
+            where, target = key.rpartition(".")[0], err.parent_node.get("_target_")
+            of = f"an argument of {target}" if target else f"a key of {where or 'the config'}"
+            hint = did_you_mean(str(err.key), map(str, err.parent_node), lambda c: _join(where, c))
+            raise ConfigError(f"{key} is not {of}, so nothing would read it.{hint}") from None
+        raise ConfigError(f"{key}={err.value!r} must be {_words(err.child_node, err)}.") from None
     _check_as_written(plain, typed, path)
     _check_ranges(plain, schema, path)
+
+
+def did_you_mean(word: str, choices, spell=lambda c: c, cutoff: float = 0.6) -> str:
+    """ " Did you mean a or b?" of the choices close to `word`, each as `spell` writes it."""
+    close = difflib.get_close_matches(word, [c for c in choices if c[0] != "_"], 3, cutoff)
+    return f" Did you mean {' or '.join(map(spell, close))}?" if close else ""
 
 
 def _join(path: str, key: Any) -> str:
     return f"{path}.{key}" if path else str(key)
 
 
-def _reworded(err: OmegaConfBaseException, path: str) -> str:
-    key = _join(path, err.full_key)
-    if isinstance(err, ConfigKeyError) and err.parent_node is not None:
-        known = [str(k) for k in err.parent_node if not str(k).startswith("_")]
-        close = difflib.get_close_matches(str(err.key), known, n=3, cutoff=0.6)
-        where = key.rpartition(".")[0]
-        hint = f" Did you mean {' or '.join(_join(where, c) for c in close)}?" if close else ""
-        target = err.parent_node.get("_target_")
-        if target:
-            return f"{key} is not an argument of {target}, so it cannot be added.{hint}"
-        place = f"under {where}" if where else "at the top level"
-        return (
-            f"{key}: no such setting {place}, so nothing would read it (a + adds only what the "
-            f"code takes).{hint} Settings {place}: {', '.join(sorted(known))}."
-        )
-    if err.child_node is not None:
-        return f"{key}={err.value!r} must be {_words(err.child_node)}."
-    kind = err.msg.splitlines()[0].split()[-1]  # "... converted to Integer": a list item
-    words = {"Integer": "a whole number", "Float": "a number", "Boolean": "true or false"}
-    return f"{key}={err.value!r} must be {words.get(kind, 'of another type')}."
-
-
-def _words(node: Any) -> str:
+def _words(node: Any, err: OmegaConfBaseException | None = None) -> str:
     """What a value of `node` is, in words: "a whole number or null", "true or false"."""
-    if isinstance(node, AnyNode):  # untyped, and holding a boolean word
-        return "true or false"
-    if isinstance(node, EnumNode):
-        items = [m.name for m in node._metadata.ref_type]
-    else:
-        items = {BooleanNode: ["true", "false"], IntegerNode: ["a whole number"],
-                 FloatNode: ["a number"], StringNode: ["a string"], ListConfig: ["a list"],
-                 DictConfig: ["a mapping"]}.get(type(node), ["a value"])  # fmt: skip
-    items += ["null"] if node._is_optional() else []
-    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " or " + items[-1]
+    if node is None:  # a list item: "... could not be converted to Integer"
+        kind = err.msg.splitlines()[0].split()[-1] if err else ""
+        return {"Integer": "a whole number", "Float": "a number"}.get(kind, "true or false")
+    items = {IntegerNode: ["a whole number"], FloatNode: ["a number"], ListConfig: ["a list"],
+             DictConfig: ["a mapping"]}.get(type(node), ["true or false"])  # fmt: skip
+    return " or ".join(items + (["null"] if node._is_optional() else []))
 
 
 def _check_as_written(plain: Any, typed: Any, path: str) -> None:
@@ -266,10 +260,11 @@ def _as_written(value: Any, node: Any) -> bool:
 def _check_ranges(plain: dict, schema: type, path: str) -> None:
     for f in dataclasses.fields(schema):
         value, here = plain.get(f.name), _join(path, f.name)
-        types_ = (f.type, *getattr(f.type, "__args__", ()))
-        inner = [t for t in types_ if dataclasses.is_dataclass(t)]
-        if inner and isinstance(value, dict):
-            _check_ranges(value, inner[0], here)
+        if dataclasses.is_dataclass(f.type) and isinstance(value, dict):
+            _check_ranges(value, f.type, here)
+        if "choices" in f.metadata and value not in f.metadata["choices"]:
+            words = ", ".join("null" if c is None else c for c in f.metadata["choices"])
+            raise ConfigError(f"{here}={value!r} must be one of: {words}.")
         if "range" not in f.metadata or isinstance(value, bool) or value is None:
             continue
         low, high, above = f.metadata["range"]
@@ -279,16 +274,22 @@ def _check_ranges(plain: dict, schema: type, path: str) -> None:
             raise ConfigError(f"{here}={value} must be {words}.")
 
 
-def _resolved(node: DictConfig) -> dict:
-    """`node` as plain values, resolved, without Hydra's node and the keys that point at state
-    not set up yet (the run folder): they are not the user's text."""
+def _resolved(node: DictConfig, path: str = "") -> dict:
+    """`node` resolved to plain values, without Hydra's node and the keys pointing at the run
+    folder (not set up yet); a typed key whose interpolation gives another type is refused."""
     out = {}
     for key in (k for k in node if k != "hydra"):
-        with contextlib.suppress(Exception):  # any failure to resolve
+        try:
             value = node[key]
             if isinstance(value, ListConfig):
                 value = OmegaConf.to_container(value, resolve=True)
-            out[key] = _resolved(value) if isinstance(value, DictConfig) else value
+        except ValidationError as err:
+            words = _words(node._get_node(key), err)
+            raise ConfigError(f"{_join(path, key)}={err.value!r} must be {words}.") from None
+        except Exception:  # noqa: BLE001 (a key that points at the run folder, not set up yet)
+            continue
+        nested = isinstance(value, DictConfig)
+        out[key] = _resolved(value, _join(path, key)) if nested else value
     return out
 
 
@@ -302,7 +303,7 @@ def _targets(tree: dict, path: str):
 
 
 def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
-    """check_types, then the combinations that cannot work (`resuming` keeps its val_every)."""
+    """check_types, then the invariants across keys (`resuming` keeps its val_every)."""
     check_types(cfg, entry)
     # A GPU where torch finds none: Lightning would say so in a traceback, after loading data.
     from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
@@ -326,8 +327,6 @@ def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
             f"{model.name} has no trainable parameters, so there is nothing to train; evaluate "
             f"it with `python -m src.eval model={model.name} data={cfg.data.name}` instead."
         )
-    if cfg.compile.enabled not in (True, False, "auto"):
-        raise ConfigError(f"compile.enabled={cfg.compile.enabled!r} must be true, false or auto.")
     for key, default in SCHEDULE_OWNS.items():
         value = cfg.trainer.get(key, default)
         if value != default:
@@ -337,17 +336,6 @@ def check(cfg: DictConfig, entry: str, resuming: bool = False) -> None:
                 "those instead."
             )
     check_schedule(cfg, resuming)
-    for key in ("model.optimizer.lr", "adversarial.optimizer.lr"):
-        # torch accepts lr=0, which trains nothing and says nothing.
-        lr = OmegaConf.select(cfg, key, default=None)
-        if lr is not None and not lr > 0:
-            raise ConfigError(f"{key}={lr} must be > 0 (with 0 nothing is trained).")
-    C = OmegaConf.select(cfg, "model.net.C", default=None)
-    if C is not None and not 1 <= C <= cfg.data.observed_len:
-        raise ConfigError(
-            f"model.net.C={C} must be between 1 and data.observed_len={cfg.data.observed_len} "
-            "(the short-term window lies inside the observed frames)."
-        )
 
 
 def check_schedule(cfg: DictConfig, resuming: bool = False) -> None:
