@@ -1,18 +1,20 @@
 """The page's rows: the runs of one experiment (run_name) on one dataset with one budget (the
 iterations planned), differing in their seed. A variant of an experiment (the reference-code
-switches, another C) is trained under a run_name of its own (conf/experiment/), so runs of one
-row that differ in what they train (SECTIONS) are refused. Runs of one seed (a run and a sweep
-job, a copy, a resumed run's segments) count once: the longest trained is kept, its validation
-curve joined from all of them, the others named."""
+switches, another C) is trained under a run_name of its own (conf/experiment/); runs of one
+run_name that differ in what they train (SECTIONS: a sweep over model.net.hidden, say) are rows
+of their own, labelled by what tells them apart (`residual_mlp_synthetic, hidden=16`). Runs of
+one seed (a run and a sweep job, a copy, a resumed run's segments) count once: the longest
+trained is kept, its validation curve joined from all of them, the others named."""
 
 from __future__ import annotations
 
 import json
+from collections import Counter
 from dataclasses import dataclass, field
 
 import pandas as pd
 
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 
 # What a model is and how it trains (not where files live, the device, the logging).
 SECTIONS = ("model", "adversarial", "sampling", "trainer.precision")
@@ -83,22 +85,26 @@ def group_runs(runs: list[dict]) -> list[Group]:
         key = (str(config.get("run_name")), str(config["data"]["name"]), config.get("iterations"))
         by_key.setdefault(key, []).append(run)
     groups, first = [], {}
+    variants: dict[tuple, list[dict]] = {}
     for (run_name, dataset, planned), members in by_key.items():
         found = [settings(r["config"]) for r in members]
-        if differ := sorted(
-            k for a in found for b in found for k in a.keys() & b.keys() if a[k] != b[k]
-        ):
-            raise ConfigError(
-                f"runs of {run_name} ({dataset}) differ in {differ[0]}: a variant of an "
-                "experiment is another row; train it with a run_name of its own"
-            )
+        differ = sorted(
+            {k for a in found for b in found for k in a.keys() & b.keys() if a[k] != b[k]}
+        )
+        # A run that predates a switch ran as its most common setting does (the default).
+        usual = {k: Counter(s[k] for s in found if k in s).most_common(1)[0][0] for k in differ}
+        for run, these in zip(members, found, strict=True):
+            told = [f"{k.rpartition('.')[2]}={json.loads(these.get(k, usual[k]))}" for k in differ]
+            label = ", ".join([run_name, *told])
+            variants.setdefault((label, run_name, dataset, planned), []).append(run)
+    for (label, run_name, dataset, planned), members in variants.items():
         kept, left_out = _one_per_seed(members)
         kept.sort(key=lambda r: _seed_order(seed_of(r)))
         # What the seeds trained (the fewest): runs still training are not their plan's length.
         iterations = min(
             (n for n in (planned, *(r.get("iterations") for r in kept)) if n), default=0
         )
-        group = Group(run_name, run_name, dataset, int(iterations), kept, left_out)
+        group = Group(label, run_name, dataset, int(iterations), kept, left_out)
         groups.append(group)
         first.setdefault((run_name, dataset), len(first))
     rank = {"h36m": 0, "cmu": 1}
