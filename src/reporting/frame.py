@@ -124,12 +124,12 @@ class Results:
             )
         self.values = values
         self.evaluated = values[values.metric == "euler"].groupby("g").action.unique().map(list)
-        self._refs = {e: self._references(e) for e in self.entries}
+        self.refs = {e: self._references(e) for e in self.entries}  # the model's own paper first
         self.zero_cells = self._zero_velocity_cells()
         self.slip_cells = self.zero_cells[self.zero_cells.slip]
         self.slips: dict[str, dict[str, str]] = {}  # reference key -> {action: why}
         for e in self.entries:
-            for ref in self._refs[e]:
+            for ref in self.refs[e]:
                 found = known_slips(ref.key, self.actions(e, judged=False))
                 self.slips.setdefault(ref.key, {}).update(found)
         for key, action, why in self.slip_cells[["key", "action", "why"]].itertuples(index=False):
@@ -196,9 +196,6 @@ class Results:
             refs += [Reference(other, values, also.get("about"))] if values else []
         return refs
 
-    def references(self, group: Group) -> list[Reference]:
-        return self._refs[group]
-
     def _zero_velocity_cells(self) -> pd.DataFrame:
         """Each published zero-velocity cell of an action evaluated here on the papers' windows
         (SRNN seeds) beside ours: key, dataset, action, ms, published, ours, slip (beyond
@@ -209,7 +206,7 @@ class Results:
             f[f.g == self._g[zero]].merge(long_values(ref.published), on=["action", "ms"])
             .assign(key=ref.key)
             for zero in self.baselines if zero.label == ZERO
-            for ref in self._refs[zero] if ref.key.endswith(f" {ZERO}")
+            for ref in self.refs[zero] if ref.key.endswith(f" {ZERO}")
         ]  # fmt: skip
         empty = long_values({}).assign(ours=0.0, key="", dataset="").astype({"ms": int})
         c = pd.concat([empty, *cells], ignore_index=True)
@@ -233,12 +230,15 @@ class Results:
         actions = self.clean_actions(group, reference, judged)
         return same_set_average(reference.published, actions, HORIZONS)
 
+    def zero(self, dataset: str) -> Group | None:
+        """The zero-velocity baseline on `dataset`: the yardstick."""
+        return next((b for b in self.baselines if (b.label, b.dataset) == (ZERO, dataset)), None)
+
     def no_better_than_zero(self, group: Group, protocol: str) -> dict[str, list[int]]:
         """{checkpoint: horizons where, as printed, ours is not below zero-velocity's average over
         the same judged actions}; {} without a zero-velocity evaluation of them."""
-        zeros = [b for b in self.baselines if (b.label, b.dataset) == (ZERO, group.dataset)]
-        actions = self.actions(group)
-        if not zeros or not (zero := self.means(zeros[0], protocol, "-", actions=actions)):
+        yardstick, actions = self.zero(group.dataset), self.actions(group)
+        if yardstick is None or not (zero := self.means(yardstick, protocol, "-", actions=actions)):
             return {}
         out = {}
         for s in SELECTIONS:
@@ -265,7 +265,7 @@ class Results:
     def reference(self, group: Group) -> tuple[Reference | None, str]:
         """The reference a group is judged against (its own paper's, unless that one has no
         same-set average), and why that one."""
-        refs = self.references(group)
+        refs = self.refs[group]
         if not (usable := [r for r in refs if self.same_set(group, r)]):
             return None, "its paper prints an average only"
         why = "the only published source" if len(refs) == 1 else "the model's own paper"
@@ -281,7 +281,7 @@ class Results:
         return usable[0], why
 
     def judge(self, group: Group, protocol: str, target: float | None) -> Judgement:
-        if not (refs := self.references(group)) or target is None:
+        if not (refs := self.refs[group]) or target is None:
             return Judgement("-")
         chosen, why = self.reference(group)
         if chosen is None:

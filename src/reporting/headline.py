@@ -93,7 +93,7 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             verdict = f"not judged ({j.why})"
         elif j.status != "-":
             ref = j.reference
-            others = [r for r in results.references(group) if r is not ref]
+            others = [r for r in results.refs[group] if r is not ref]
             verdict = f"**{j.status}**, judged against {ref.name}"
             if others or "left out" in j.why:
                 also = "; ".join(r.name + (f" ({r.about})" if r.about else "") for r in others)
@@ -109,17 +109,15 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             cells = stat_cells(results.average(group, protocol, s, judged=not all_actions))
             first = [label, group.dataset] if i == 0 else ["", ""]
             rows.append([*first, budget, what, n, *cells, "" if i else verdict])
-        for ref in results.references(group):
+        for ref in results.refs[group]:
             name, cells, text = _reference_row(
                 results, group, ref, protocol, targets.get(group.dataset)
             )
             rows.append(["", "", "", name, "", *cells, text])
-        zero = [
-            b for b in results.baselines if (b.label, b.dataset) == ("zero_velocity", group.dataset)
-        ]
+        zero = results.zero(group.dataset)
         if zero and (k + 1 == len(groups) or groups[k + 1].dataset != group.dataset):
-            cells = stat_cells(results.average(zero[0], protocol, "-", judged=True))
-            what = f"baseline, {len(results.actions(zero[0]))} actions"
+            cells = stat_cells(results.average(zero, protocol, "-", judged=True))
+            what = f"baseline, {len(results.actions(zero))} actions"
             rows.append(["zero-velocity", group.dataset, "-", what, "-", *cells, "the yardstick"])
     footnotes = [f"{str(k).translate(SUPERSCRIPTS)} {t}" for t, k in notes.items()]
     ablations = [g for g in results.groups if g.ablation]
@@ -178,7 +176,7 @@ def figures(results: Results, protocol: str):
             avg = results.average(group, protocol, s, judged=True).items()
             std = {ms: v[1] for ms, v in avg if v[2] > 1} or None
             panel.append(Curve(f"{name}, ours {s}", {ms: v[0] for ms, v in avg}, std, k, style))
-        for j, ref in enumerate(results.references(group)):
+        for j, ref in enumerate(results.refs[group]):
             if same := results.same_set(group, ref):
                 panel.append(Curve(ref.name, same, None, k, "-." if j else "--"))
         if len(curve := results.validation_means(group, protocol)) > 1:

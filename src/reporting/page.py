@@ -73,7 +73,7 @@ def averages_table(results: Results, protocol: str, metric: str, published: bool
             row += [n, budget] if trained else ["-", "-"]
             rows.append(row + hl.stat_cells(results.average(group, protocol, s, metric), decimals))
         evaluated = results.actions(group, judged=False)
-        for ref in results.references(group) if published and metric == "euler" else ():
+        for ref in results.refs[group] if published and metric == "euler" else ():
             slips = results.slips_in(ref, evaluated)
             flag = f" (slips of the paper left out: {', '.join(slips)})" if slips else ""
             n = len(set(ref.published) - {AVERAGE})
@@ -102,9 +102,7 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
     for ms in (ms for ms in HORIZONS if ms in stats.columns.get_level_values("horizon")):
         out[f"{ms} ms"], out[f"{ms} ms std"] = stats["mean", ms], stats["std", ms]
     out = out.reset_index()
-    first = {
-        g: r[0].published for g, e in enumerate(results.entries) if (r := results.references(e))
-    }
+    first = {g: r[0].published for g, e in enumerate(results.entries) if (r := results.refs[e])}
     for ms in HORIZONS if metric == "euler" else ():
         pairs = zip(out.g, out.action, strict=True)
         out[f"{ms} ms published"] = [first.get(g, {}).get(a, {}).get(ms) for g, a in pairs]
@@ -116,14 +114,10 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
 
 
 def reading(results: Results) -> list[str]:
-    seeds = "; ".join(
-        f"{g.label} ({g.dataset}, {g.iterations:,} iterations): {len(g.runs)} seed"
-        f"{'s' * (len(g.runs) != 1)} ({', '.join(str(r['seed']) for r in g.runs)})"
-        for g in results.groups
-    )
+    """How to read the page; each row's seeds are under Provenance."""
     lines = [
-        f"**Seeds.** {seeds or 'no training runs'}. A cell is the mean ± the sample standard "
-        "deviation (n - 1) over the seeds' averages; without ±, one seed.",
+        "**Seeds.** A cell is the mean ± the sample standard deviation (n - 1) over the seeds' "
+        "averages (each seed's under Provenance); without ±, one seed.",
         "",
     ]
     if left_out := [line for g in results.groups for line in g.left_out]:
@@ -210,7 +204,7 @@ def data_lines(results: Results) -> list[str]:
                 f"- {group.dataset}: training files of the evaluated actions present (of the full "
                 "archive's): " + ", ".join(short) + "."
             )
-        for ref in results.references(group):
+        for ref in results.refs[group]:
             if slips := results.slips_in(ref, evaluated):
                 lines.append(
                     f"- {group.label}: the published values ({ref.key}) of {', '.join(slips)} are "
@@ -240,7 +234,7 @@ def published_csv(results: Results) -> str:
     """Every published cell of the references on the page, zero-velocity's beside it as the
     protocol gives it on this data, and why it is a slip: found by the protocol, else its
     action's known slip (references.json); '' if not."""
-    keys = {r.key for e in results.entries for r in results.references(e)}
+    keys = {r.key for e in results.entries for r in results.refs[e]}
     f = published_frame().assign(key=lambda f: f.paper + " " + f.method)
     zero = results.zero_cells.assign(found=lambda z: z.why.where(z.slip))
     on = ["key", "dataset", "action", "ms"]

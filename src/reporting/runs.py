@@ -146,16 +146,15 @@ def gather_runs(paths: list, records: Path | None, protocols: list[str]) -> list
     root = display_root(folders) if folders else PROJECT_ROOT
     runs = [load_run(folder, root) for folder in folders]
     recorded = read_records(records, protocols) if records else []
-
-    def same(
-        run: dict, record: dict
-    ) -> bool:  # shown paths end alike: each is relative to its root
-        ends = zip(Path(run["path"]).parts[::-1], Path(record["path"]).parts[::-1], strict=False)
-        return record_name(run) == record_name(record) and all(a == b for a, b in ends)
-
     for run in runs:  # a run given again is written over its record
         run["record"] = next((r["record"] for r in recorded if same(run, r)), None)
     return runs + [r for r in recorded if not any(same(run, r) for run in runs)]
+
+
+def same(run: dict, record: dict) -> bool:
+    """One run: one name, and shown paths that end alike (each is relative to its root)."""
+    ends = zip(Path(run["path"]).parts[::-1], Path(record["path"]).parts[::-1], strict=False)
+    return record_name(run) == record_name(record) and all(a == b for a, b in ends)
 
 
 def record_name(run: dict) -> str:
