@@ -179,7 +179,8 @@ def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict
     if not missed and len(unjudged) < len(judged):
         text += "Every trained row with a published same-set average meets it."
     if missed:
-        why = [f"{g.label} ({notes.get(g.label, 'no explanation given')})" for g in missed]
+        labels = dict.fromkeys(g.label for g in missed)  # a label's budgets share its note
+        why = [f"{label} ({notes.get(label, 'no explanation given')})" for label in labels]
         text += "Rows that miss it: " + "; ".join(why) + "."
     text += "".join(_validation_text(results, g, protocol, j) for g, j in missed.items())
     return [text, ""]

@@ -121,7 +121,6 @@ def load_run(path: Path, root: Path) -> dict:
     shown = lambda p: str(p.relative_to(root) if p.is_relative_to(root) else p)  # noqa: E731
     return {
         "path": shown(path),
-        "folder": str(path.resolve()),  # to tell a resumed run's earlier segments from copies
         # A resumed run's best checkpoint may lie in an earlier segment's folder: recorded as
         # shown where it is under `root`, as a record names no absolute path.
         "shown_checkpoints": {
