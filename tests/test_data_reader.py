@@ -225,6 +225,17 @@ def test_corrupt_cache_file_is_reparsed(tmp_path, counted_parses):
     assert counted_parses[5:] == ["walking_1.txt"]  # no crash
 
 
+def test_the_earlier_cache_layout_is_removed(tmp_path, counted_parses):
+    rels = _synthetic(tmp_path)
+    folder = tmp_path / "cache/h36m"
+    folder.mkdir(parents=True)
+    for name in ("manifest.json", "h3.6m__dataset__S1__walking_1.npy"):
+        (folder / name).write_text("a cache file of the earlier layout")
+    load_sequences(tmp_path, H36M, rels)
+    assert len(counted_parses) == 4 and len(list(folder.iterdir())) == 4
+    assert not (folder / "manifest.json").exists()
+
+
 def test_cache_leaves_no_temp_files(tmp_path):
     rels = _synthetic(tmp_path)
     load_sequences(tmp_path, H36M, rels)

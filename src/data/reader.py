@@ -29,7 +29,7 @@ _F32_MAX = float(np.finfo(np.float32).max)
 # name): Python's float() alone would also accept "1_0" or non-ASCII digits.
 _NUMBER = re.compile(r"[+-]?((\d+\.?\d*|\.\d+)(e[+-]?\d+)?|nan|inf(inity)?)", re.ASCII | re.I)
 # A cache file: the source's path with "/" as "__", its size and mtime_ns (load_sequences).
-_CACHED = re.compile(r"([^.].*)\.\d+-\d+\.npy")
+_CACHED = re.compile(r"(.+)\.\d+-\d+\.npy")
 _FIX = (
     "fix: replace the file with the copy from the original archive, "
     "or delete it and run with data.allow_partial=true"
@@ -127,9 +127,12 @@ def load_sequences(
                 writable = False
                 log.warning("cannot write the cache in %s (%s); parsing every time", folder, exc)
 
-    # Forget the files of sources that are gone (they would never be valid again).
-    for npy in folder.glob("*.npy") if writable else ():
-        cached = _CACHED.fullmatch(npy.name)
-        if cached and not (data_dir / f"{cached[1].replace('__', '/')}.txt").is_file():
-            npy.unlink(missing_ok=True)
+    # Forget the files of sources that are gone, and the earlier layout's (a manifest.json
+    # beside <path>.npy files): they would never be read again.
+    with suppress(OSError):  # a read-only cache stays as it is
+        (folder / "manifest.json").unlink(missing_ok=True)
+        for npy in folder.glob("[!.]*.npy"):  # not the temporary files of atomic_write
+            cached = _CACHED.fullmatch(npy.name)
+            if not cached or not (data_dir / f"{cached[1].replace('__', '/')}.txt").is_file():
+                npy.unlink(missing_ok=True)
     return out
