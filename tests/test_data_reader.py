@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import errno
-import json
 import os
 import zipfile
 from pathlib import Path
@@ -174,10 +173,9 @@ def test_cache_hit_after_first_parse(tmp_path, counted_parses):
     for rel in rels:
         np.testing.assert_array_equal(first[rel], second[rel])
         assert second[rel].shape == (20, 99)
-    manifest = json.loads((tmp_path / "cache/h36m/manifest.json").read_text())
-    st = (tmp_path / rels[0]).stat()
-    assert manifest["files"][rels[0]]["size"] == st.st_size
-    assert manifest["files"][rels[0]]["mtime_ns"] == st.st_mtime_ns
+    st = (tmp_path / rels[0]).stat()  # a cache file is named by its source's size and mtime
+    name = f"h3.6m__dataset__S1__walking_1.{st.st_size}-{st.st_mtime_ns}.npy"
+    assert (tmp_path / "cache/h36m" / name).is_file()
 
 
 def test_changed_file_is_reparsed_alone(tmp_path, counted_parses):
@@ -208,22 +206,34 @@ def test_added_and_removed_files_update_their_entries(tmp_path, counted_parses):
     (tmp_path / rels[3]).unlink()
     load_sequences(tmp_path, H36M, rels[:3])
     assert len(counted_parses) == 4
-    manifest = json.loads((tmp_path / "cache/h36m/manifest.json").read_text())
-    assert sorted(manifest["files"]) == sorted(rels[:3])
+    assert len(list((tmp_path / "cache/h36m").glob("*.npy"))) == 3
+    _write(tmp_path / rels[0], _frames(7))  # a changed source: its earlier cache file goes
+    load_sequences(tmp_path, H36M, rels[:3])
     assert len(list((tmp_path / "cache/h36m").glob("*.npy"))) == 3
 
 
 def test_corrupt_cache_file_is_reparsed(tmp_path, counted_parses):
     rels = _synthetic(tmp_path)
     first = load_sequences(tmp_path, H36M, rels)
-    npy = next((tmp_path / "cache/h36m").glob("*walking_1.npy"))
+    npy = next((tmp_path / "cache/h36m").glob("*walking_1.*.npy"))
     npy.write_bytes(npy.read_bytes()[:100])  # truncated, as by a crash without atomic writes
     out = load_sequences(tmp_path, H36M, rels)
     assert counted_parses[4:] == ["walking_1.txt"]
     np.testing.assert_array_equal(out[rels[0]], first[rels[0]])
-    (tmp_path / "cache/h36m/manifest.json").write_text("{not json")
+    npy.write_bytes(b"not a numpy file")
     load_sequences(tmp_path, H36M, rels)
-    assert len(counted_parses) == 9  # everything again, no crash
+    assert counted_parses[5:] == ["walking_1.txt"]  # no crash
+
+
+def test_the_earlier_cache_layout_is_removed(tmp_path, counted_parses):
+    rels = _synthetic(tmp_path)
+    folder = tmp_path / "cache/h36m"
+    folder.mkdir(parents=True)
+    for name in ("manifest.json", "h3.6m__dataset__S1__walking_1.npy"):
+        (folder / name).write_text("a cache file of the earlier layout")
+    load_sequences(tmp_path, H36M, rels)
+    assert len(counted_parses) == 4 and len(list(folder.iterdir())) == 4
+    assert not (folder / "manifest.json").exists()
 
 
 def test_cache_leaves_no_temp_files(tmp_path):

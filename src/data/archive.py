@@ -195,11 +195,9 @@ def _extract(archive: Path, spec: DatasetSpec, tmp: Path) -> None:
                 # Members outside the dataset folder (__MACOSX/, a README) are skipped.
                 if spec.root not in parts or info.is_dir():
                     continue
-                dest = tmp.joinpath(*parts[parts.index(spec.root) :])
-                dest.parent.mkdir(parents=True, exist_ok=True)
                 member = info.filename
-                with zf.open(info) as src, open(dest, "wb") as out:
-                    shutil.copyfileobj(src, out, 1 << 20)
+                info.filename = "/".join(parts[parts.index(spec.root) :])  # written there
+                zf.extract(info, tmp)
     except (zipfile.BadZipFile, zlib.error, EOFError) as err:
         where = f"member {member!r}" if member else "its directory"
         raise DataError(

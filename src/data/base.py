@@ -227,11 +227,9 @@ class MotionDataModule(L.LightningDataModule):
         val = [e for e in val if e.relpath not in missing]
         files = [e.relpath for e in train + present_test + val]
         raw = load_sequences(self.data_dir, self.spec, files)
-        if self.zero_root:
-            raw = {
-                k: np.concatenate([np.zeros_like(v[:, :6]), v[:, 6:]], axis=1)
-                for k, v in raw.items()
-            }
+        if self.zero_root:  # load_sequences' arrays are this call's own
+            for frames in raw.values():
+                frames[:, :6] = 0
         if not train and not self._eval_only:
             raise DataError(
                 f"no training file of the configured actions exists under {self.data_dir} "

@@ -1,6 +1,6 @@
-"""The torch dataset over downsampled, normalised sequences, and the training batch sampler of
-the reference (protocol §1.4): per window a sequence uniform with replacement (not weighted by
-length), then a start uniform in the dataset's range; endless, batch k drawn from (seed, k)."""
+"""The torch dataset of windows of downsampled, normalised sequences, and the reference's training
+sampler (protocol §1.4): per window a sequence uniform with replacement (not weighted by length),
+then a start uniform in the dataset's range."""
 
 from __future__ import annotations
 
@@ -47,11 +47,10 @@ def _rank() -> int:
 
 
 class TrainWindowSampler(Sampler):
-    """An endless stream of batches of (seq, start) pairs: batch k holds ``batch_size * draws``
-    windows drawn from (seed, k, DDP rank), so it is the same whenever and wherever it is drawn,
-    a resume starts at batch ``start`` (the Trainer's global_step) with nothing to skip, and each
-    rank draws its own without a DistributedSampler (``use_distributed_sampler=False``). The
-    Trainer's ``max_steps`` ends the stream."""
+    """Endless batches of (seq, start) pairs, ended by the Trainer's ``max_steps``: batch k holds
+    ``batch_size * draws`` windows drawn from (seed, k, DDP rank), so a resume starts at batch
+    ``start`` (the restored global_step) with nothing to skip, and each rank draws its own
+    without a DistributedSampler (``use_distributed_sampler=False``)."""
 
     def __init__(
         self,

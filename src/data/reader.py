@@ -2,13 +2,12 @@
 or 117 (CMU) comma-separated numbers, no header) into float32 arrays with numpy's C parser (about
 10 s for all of H3.6M on one core); a file it fails on is read again line by line, to report the
 first bad line. Each file is parsed once: ``<data_dir>/cache/<dataset>/`` holds one ``.npy`` per
-file and ``manifest.json`` with each source's size and ``mtime_ns``, so a changed, new or vanished
-source updates its own entry only. Writes are atomic; a cache file that does not read back right
-is parsed again."""
+file, named by the source's path, size and ``mtime_ns``, so a changed, new or vanished source
+updates its own file only. Writes are atomic; a cache file that does not read back is parsed
+again."""
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import re
@@ -29,6 +28,8 @@ _F32_MAX = float(np.finfo(np.float32).max)
 # Plain ASCII decimal notation, what numpy's parser takes (nan and inf are refused later, by
 # name): Python's float() alone would also accept "1_0" or non-ASCII digits.
 _NUMBER = re.compile(r"[+-]?((\d+\.?\d*|\.\d+)(e[+-]?\d+)?|nan|inf(inity)?)", re.ASCII | re.I)
+# A cache file: the source's path with "/" as "__", its size and mtime_ns (load_sequences).
+_CACHED = re.compile(r"(.+)\.\d+-\d+\.npy")
 _FIX = (
     "fix: replace the file with the copy from the original archive, "
     "or delete it and run with data.allow_partial=true"
@@ -90,10 +91,6 @@ def read_motion_file(path: str | os.PathLike, n_columns: int) -> np.ndarray:
     return np.asarray(rows, dtype=np.float32)
 
 
-CACHE_VERSION = 1
-MANIFEST = "manifest.json"
-
-
 def load_sequences(
     data_dir: str | os.PathLike, spec: DatasetSpec, relpaths: Sequence[str]
 ) -> dict[str, np.ndarray]:
@@ -101,49 +98,41 @@ def load_sequences(
     the cache where valid, else parsed and cached (if the cache is not writable: not cached)."""
     data_dir = Path(data_dir)
     folder = data_dir / "cache" / spec.name
-    manifest = dict(version=CACHE_VERSION, dataset=spec.name, n_columns=spec.n_columns, files={})
-    with suppress(OSError, ValueError, LookupError, TypeError, AttributeError):
-        old = json.loads((folder / MANIFEST).read_text())
-        same = (old["version"], old["n_columns"]) == (CACHE_VERSION, spec.n_columns)
-        files = old["files"].values()
-        if same and all({"size", "mtime_ns", "frames", "npy"} <= e.keys() for e in files):
-            manifest = old
-    entries: dict[str, dict] = manifest["files"]
     out: dict[str, np.ndarray] = {}
-    writable, changed = True, False
+    writable, parsing = True, False
     for rel in relpaths:
-        st = (data_dir / rel).stat() if (data_dir / rel).is_file() else None  # None: reader says
-        entry = entries.get(rel)
-        if st and entry and (entry["size"], entry["mtime_ns"]) == (st.st_size, st.st_mtime_ns):
-            with suppress(OSError, ValueError, EOFError):
-                arr = np.load(folder / entry["npy"], allow_pickle=False)
-                if arr.dtype == np.float32 and arr.shape == (entry["frames"], spec.n_columns):
-                    out[rel] = arr
-                    continue
-        # stat taken before reading: if the file changes while we read it, the entry is stale
+        source = data_dir / rel
+        if not source.is_file():
+            read_motion_file(source, spec.n_columns)  # raises, naming the file
+        # stat taken before reading: if the file changes while we read it, the name is stale
         # and the next run parses it again.
-        if not changed:
+        st = source.stat()
+        stem = rel.removesuffix(".txt").replace("/", "__")
+        npy = folder / f"{stem}.{st.st_size}-{st.st_mtime_ns}.npy"
+        with suppress(OSError, ValueError, EOFError):
+            arr = np.load(npy, allow_pickle=False)
+            if arr.dtype == np.float32 and arr.ndim == 2 and arr.shape[1] == spec.n_columns:
+                out[rel] = arr
+                continue
+        if not parsing:
             log.info("parsing %s text files into the cache %s", spec.name, folder)
-        changed = True
-        arr = out[rel] = read_motion_file(data_dir / rel, spec.n_columns)
+        parsing = True
+        arr = out[rel] = read_motion_file(source, spec.n_columns)
         if writable:
-            npy = rel.replace("/", "__").removesuffix(".txt") + ".npy"
             try:
-                atomic_write(folder / npy, lambda tmp, a=arr: np.save(tmp, a, allow_pickle=False))
+                for old in folder.glob(f"{stem}.*-*.npy"):  # the source's earlier versions
+                    old.unlink()
+                atomic_write(npy, lambda tmp, a=arr: np.save(tmp, a, allow_pickle=False))
             except OSError as exc:
                 writable = False
                 log.warning("cannot write the cache in %s (%s); parsing every time", folder, exc)
-                continue
-            entries[rel] = dict(size=st.st_size, mtime_ns=st.st_mtime_ns, frames=len(arr), npy=npy)
 
-    # Forget entries whose source file is gone (they would never be valid again).
-    gone = [rel for rel in entries if not (data_dir / rel).is_file()]
-    for rel in gone:
-        (folder / entries.pop(rel)["npy"]).unlink(missing_ok=True)
-    if (changed or gone) and writable:
-        text = json.dumps(manifest, indent=1, sort_keys=True)
-        try:
-            atomic_write(folder / MANIFEST, lambda tmp: tmp.write_text(text))
-        except OSError as exc:
-            log.warning("cannot write the cache manifest in %s (%s)", folder, exc)
+    # Forget the files of sources that are gone, and the earlier layout's (a manifest.json
+    # beside <path>.npy files): they would never be read again.
+    with suppress(OSError):  # a read-only cache stays as it is
+        (folder / "manifest.json").unlink(missing_ok=True)
+        for npy in folder.glob("[!.]*.npy"):  # not the temporary files of atomic_write
+            cached = _CACHED.fullmatch(npy.name)
+            if not cached or not (data_dir / f"{cached[1].replace('__', '/')}.txt").is_file():
+                npy.unlink(missing_ok=True)
     return out
