@@ -1,7 +1,6 @@
-"""What the entry points share (`hydra_entry`): every refusal as one line through
-`run_folders.refuse` (the project's errors, and what Hydra rejects while composing, reworded with
-the valid choices; HYDRA_FULL_ERROR=1 shows Hydra's traceback), written `--help` pages, and only
-the warnings that are true for this project."""
+"""What the entry points share (`hydra_entry`): every refusal as one line, exit status 2
+(Hydra's own reworded with the close choices; HYDRA_FULL_ERROR=1 shows its traceback), written
+`--help` pages, and only the warnings that are true for this project."""
 
 from __future__ import annotations
 
@@ -61,8 +60,7 @@ def silence_false_warnings() -> None:
 
 
 def lightning_interrupt_raised(fn, cfg: DictConfig):
-    """fn(cfg), with a Ctrl-C inside a Lightning Trainer raised as the KeyboardInterrupt it
-    was: the Trainer turns it into its own sys.exit(1), inside `except KeyboardInterrupt`."""
+    """fn(cfg), with a Ctrl-C that a Lightning Trainer turned into sys.exit(1) raised again."""
     try:
         return fn(cfg)
     except SystemExit as err:
@@ -72,10 +70,9 @@ def lightning_interrupt_raised(fn, cfg: DictConfig):
 
 
 def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True):
-    """`@hydra.main` for `conf/<config_name>.yaml`; the project's errors end it in one line,
-    exit status 2, a Ctrl-C in one line, status 130. With `tidy`, a refusal or a Ctrl-C removes
-    what the command put into its run folder, unless its file `started` exists (the run had
-    begun)."""
+    """`@hydra.main` for `conf/<config_name>.yaml`: a refusal is one line (status 2), so is a
+    Ctrl-C (130). With `tidy`, either removes what the command put into its run folder, unless
+    its file `started` exists (the run had begun)."""
 
     def decorate(fn):
         @functools.wraps(fn)
