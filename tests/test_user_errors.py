@@ -540,7 +540,6 @@ def test_installed_without_the_configs_is_one_line(tmp_path, monkeypatch, capsys
     import src.cli as cli
     from src.eval import main
 
-    cli.check_installation()  # the clone has its configs
     monkeypatch.setattr(cli, "CONF_DIR", tmp_path / "site-packages" / "conf")
     monkeypatch.setattr(sys, "argv", ["src.eval", "model=zero_velocity", "data=synthetic"])
     with pytest.raises(SystemExit) as info:
