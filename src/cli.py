@@ -1,7 +1,6 @@
-"""What the entry points share (`hydra_entry`): every refusal as one line through
-`run_folders.refuse` (the project's errors, and what Hydra rejects while composing, reworded with
-the valid choices; HYDRA_FULL_ERROR=1 shows Hydra's traceback), written `--help` pages, and only
-the warnings that are true for this project."""
+"""What the entry points share (`hydra_entry`): every refusal as one line, exit status 2
+(Hydra's own reworded with the close choices; HYDRA_FULL_ERROR=1 shows its traceback), written
+`--help` pages, and only the warnings that are true for this project."""
 
 from __future__ import annotations
 
@@ -38,16 +37,6 @@ if not OmegaConf.has_resolver("options"):
     OmegaConf.register_new_resolver("options", group_options)
 
 
-def check_installation() -> None:
-    """`pip install .` (not editable) copies only the package, without conf/."""
-    if not (CONF_DIR / "train.yaml").is_file():
-        refuse(
-            f"the project's configs are missing: {CONF_DIR} holds no train.yaml (as after `pip "
-            "install .`, which copies only the Python code). Fix: `pip uninstall motion-forecast`"
-            ", then `pip install -e .` (editable) in the clone, and run the commands there."
-        )
-
-
 def silence_false_warnings() -> None:
     """Leave out what the libraries print that is false or idle here, each by its own text."""
     # Lightning 2.6 builds torch's deprecated LeafSpec itself; nothing a user can change.
@@ -60,29 +49,22 @@ def silence_false_warnings() -> None:
     tips.addFilter(no_tips)  # added once however often called
 
 
-def lightning_interrupt_raised(fn, cfg: DictConfig):
-    """fn(cfg), with a Ctrl-C inside a Lightning Trainer raised as the KeyboardInterrupt it
-    was: the Trainer turns it into its own sys.exit(1), inside `except KeyboardInterrupt`."""
-    try:
-        return fn(cfg)
-    except SystemExit as err:
-        if isinstance(err.__context__, KeyboardInterrupt):
-            raise err.__context__ from None
-        raise
-
-
 def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True):
-    """`@hydra.main` for `conf/<config_name>.yaml`; the project's errors end it in one line,
-    exit status 2, a Ctrl-C in one line, status 130. With `tidy`, a refusal or a Ctrl-C removes
-    what the command put into its run folder, unless its file `started` exists (the run had
-    begun)."""
+    """`@hydra.main` for `conf/<config_name>.yaml`: a refusal is one line (status 2), so is a
+    Ctrl-C (130). With `tidy`, either removes what the command put into its run folder, unless
+    its file `started` exists (the run had begun)."""
 
     def decorate(fn):
         @functools.wraps(fn)
         def task(cfg: DictConfig):
             try:
                 with nothing_left_if_refused(started) if tidy else contextlib.nullcontext():
-                    return lightning_interrupt_raised(fn, cfg)
+                    try:
+                        return fn(cfg)
+                    except SystemExit as err:  # a Trainer's own exit(1) on Ctrl-C: raised again
+                        if not isinstance(err.__context__, KeyboardInterrupt):
+                            raise
+                        raise err.__context__ from None
             except USER_ERRORS as err:
                 # Into the run's log too: its folder stays when the run had begun, and a
                 # sweep job's always (train.log said nothing of why the run ended).
@@ -96,7 +78,6 @@ def hydra_entry(config_name: str, started: str | None = None, tidy: bool = True)
             if cfg_passthrough is not None:
                 return task(cfg_passthrough)
             silence_false_warnings()
-            check_installation()
             if config_name in ("eval", "visualize") and not any(
                 a.startswith("data=") for a in sys.argv
             ):  # a checkpoint brings its data config; a partial copy is the machine's fact
@@ -125,6 +106,12 @@ def hydra_error(err: Exception, config_name: str) -> str:
     """Hydra's refusal while composing `config_name`, in one line; a misspelt option or key gets
     the close choices (Hydra offers to add the key with +, which nothing would read)."""
     cause = err.__cause__
+    if not (CONF_DIR / "train.yaml").is_file():  # `pip install .` copies only the Python code
+        return (
+            f"the project's configs are missing: {CONF_DIR} holds no train.yaml (as after `pip "
+            "install .`, which copies only the Python code). Fix: `pip uninstall motion-forecast`"
+            ", then `pip install -e .` (editable) in the clone, and run the commands there."
+        )
     if isinstance(err, MissingConfigException) and err.options is not None:
         group, _, wanted = (err.missing_cfg_file or "?/?").rpartition("/")
         return (

@@ -17,7 +17,7 @@ import torch
 from hydra.core.config_store import ConfigStore
 from hydra_zen import BuildsFn
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
-from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
+from omegaconf.errors import ConfigKeyError, ValidationError
 from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode
 
 from src.data.base import EVAL_PROTOCOLS
@@ -29,12 +29,19 @@ class ConfigError(ValueError):
 
 
 def within(low: float, high: float | None = None, *, above: bool = False) -> Any:
-    """A key whose value must lie in [low, high] ((low, high] with above=True)."""
-    return field(default=MISSING, metadata={"range": (low, high, above)})
+    """A key whose value must lie in [low, high] ((low, high] with above=True), or be null."""
+    words = f"{'>' if above else '>='} {low}" if high is None else (
+        f"in {'(' if above else '['}{low}, {high}]")  # fmt: skip
+
+    def valid(v: float | None) -> bool:
+        return v is None or (v > low if above else v >= low) and (high is None or v <= high)
+
+    return field(default=MISSING, metadata={"valid": (valid, words)})
 
 
 def one_of(*names: str | None) -> Any:
-    return field(default=MISSING, metadata={"choices": names})
+    words = "one of: " + ", ".join("null" if c is None else c for c in names)
+    return field(default=MISSING, metadata={"valid": (lambda v: v in names, words)})
 
 
 @dataclass
@@ -147,8 +154,6 @@ for _name, _schema in SCHEMAS.items():  # conf/<name>.yaml's defaults list start
 SCHEDULE_OWNS = {"max_steps": -1, "max_epochs": None, "min_steps": None, "min_epochs": None,
                  "val_check_interval": None, "check_val_every_n_epoch": None,
                  "limit_train_batches": None}  # fmt: skip
-# Words YAML 1.1 reads as booleans; Hydra reads them as strings, which Python takes as true.
-BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 class _Builds(BuildsFn):
@@ -178,38 +183,36 @@ def constructor_schema(target: str, partial: bool = False) -> type:
 
 def check_types(cfg: DictConfig, entry: str) -> None:
     """A ConfigError naming the first key whose value has the wrong type or range, or that
-    nothing reads: the top level, the groups, the constructors' arguments as written."""
+    nothing reads, in one merge: the top level (Hydra checked it, but not a resume's config),
+    model and adversarial, and each `_target_`'s arguments as its constructor types them."""
     plain, raw = _resolved(cfg), OmegaConf.to_container(cfg, resolve=False)
-    _check_node(plain, SCHEMAS[entry], "")  # Hydra checked it, but not a resume's config
-    for key, schema in GROUPS.items():
+    schema = OmegaConf.structured(SCHEMAS[entry])
+    for key, group in GROUPS.items():
         if isinstance(plain.get(key), dict):
-            _check_node(plain[key], schema, key)
-    for path, node in _targets(plain, ""):
+            schema[key] = OmegaConf.structured(group)
+    for path, node in list(_targets(plain, "")):
         try:
-            schema = constructor_schema(node["_target_"], "_partial_" in node)
+            typed = OmegaConf.structured(constructor_schema(node["_target_"], "_partial_" in node))
         except Exception as err:  # noqa: BLE001 (ImportError, AttributeError, ...)
             target = node["_target_"]
             raise ConfigError(f"{path}._target_={target} cannot be imported: {err}") from None
+        OmegaConf.update(schema, path, typed, merge=False)
         # A copy (${model.net.kernel}) is checked, and named, where it was set.
         written = functools.reduce(lambda n, k: n.get(k) or {}, path.split("."), raw)
-        skip = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
-        skip |= {k for k, v in written.items() if "${" in str(v)}
-        _check_node({k: v for k, v in node.items() if k not in skip}, schema, path)
-
-
-def _check_node(plain: dict, schema: type, path: str) -> None:
+        unread = {"_convert_", "_recursive_", "_args_"} | ({"name"} if path == "data" else set())
+        for key in [k for k in node if k in unread or "${" in str(written.get(k))]:
+            del node[key]
     try:
-        typed = OmegaConf.merge(OmegaConf.structured(schema), plain)
-    except OmegaConfBaseException as err:
-        key = _join(path, err.full_key)
-        if isinstance(err, ConfigKeyError) and err.parent_node is not None:
-            where, target = key.rpartition(".")[0], err.parent_node.get("_target_")
-            of = f"an argument of {target}" if target else f"a key of {where or 'the config'}"
-            hint = did_you_mean(str(err.key), map(str, err.parent_node), lambda c: _join(where, c))
-            raise ConfigError(f"{key} is not {of}, so nothing would read it.{hint}") from None
-        raise ConfigError(f"{key}={err.value!r} must be {_words(err.child_node, err)}.") from None
-    _check_as_written(plain, typed, path)
-    _check_ranges(plain, schema, path)
+        typed = OmegaConf.merge(schema, plain)
+    except ConfigKeyError as err:
+        where, target = err.full_key.rpartition(".")[0], err.parent_node.get("_target_")
+        of = f"an argument of {target}" if target else f"a key of {where or 'the config'}"
+        hint = did_you_mean(str(err.key), map(str, err.parent_node), lambda c: _join(where, c))
+        raise ConfigError(f"{err.full_key} is not {of}, so nothing would read it.{hint}") from None
+    except ValidationError as err:
+        raise ConfigError(f"{err.full_key}={err.value!r} must be {_words(err)}.") from None
+    _check_as_written(plain, typed, "")
+    _check_ranges(plain, typed, "")
 
 
 def did_you_mean(word: str, choices, spell=lambda c: c, cutoff: float = 0.6) -> str:
@@ -222,14 +225,22 @@ def _join(path: str, key: Any) -> str:
     return f"{path}.{key}" if path else str(key)
 
 
-def _words(node: Any, err: OmegaConfBaseException | None = None) -> str:
-    """What a value of `node` is, in words: "a whole number or null", "true or false"."""
-    if node is None:  # a list item: "... could not be converted to Integer"
-        kind = err.msg.splitlines()[0].split()[-1] if err else ""
-        return {"Integer": "a whole number", "Float": "a number"}.get(kind, "true or false")
-    items = {IntegerNode: ["a whole number"], FloatNode: ["a number"], ListConfig: ["a list"],
-             DictConfig: ["a mapping"]}.get(type(node), ["true or false"])  # fmt: skip
-    return " or ".join(items + (["null"] if node._is_optional() else []))
+WORDS = {BooleanNode: "true or false", IntegerNode: "a whole number", FloatNode: "a number",
+         ListConfig: "a list", DictConfig: "a mapping", int: "a whole number",
+         float: "a number"}  # fmt: skip
+
+
+def _words(where: Any) -> str:
+    """What a value of a node (or of the node a ValidationError names) is, in words: "a whole
+    number or null"; an untyped node's, where a boolean word was written, "true or false"."""
+    node = where.child_node if isinstance(where, ValidationError) else where
+    if node is None:  # an item of a typed list
+        return WORDS.get(where.parent_node._metadata.element_type, "true or false")
+    return WORDS.get(type(node), "true or false") + (" or null" if node._is_optional() else "")
+
+
+# Words YAML 1.1 reads as booleans; Hydra reads them as strings, which Python takes as true.
+BOOLEAN_WORDS = {"yes", "no", "on", "off"}
 
 
 def _check_as_written(plain: Any, typed: Any, path: str) -> None:
@@ -237,8 +248,7 @@ def _check_as_written(plain: Any, typed: Any, path: str) -> None:
     true): each must have its type already, and no untyped value may be a YAML boolean word."""
     if isinstance(plain, dict) and isinstance(typed, DictConfig):
         for key, value in plain.items():
-            if not (isinstance(value, dict) and "_target_" in value):  # checked on its own
-                _check_as_written(value, typed._get_node(key), _join(path, key))
+            _check_as_written(value, typed._get_node(key), _join(path, key))
     elif isinstance(plain, list) and isinstance(typed, ListConfig):
         ref = typed._metadata.ref_type  # tuple[int, int] is a list to OmegaConf: its length
         size = typing.get_args(ref) if typing.get_origin(ref) is tuple else (...,)
@@ -257,24 +267,19 @@ def _as_written(value: Any, node: Any) -> bool:
     return not (isinstance(node, AnyNode) and str(value).lower() in BOOLEAN_WORDS)
 
 
-def _check_ranges(plain: dict, schema: type, path: str) -> None:
-    for f in dataclasses.fields(schema):
-        value, here = plain.get(f.name), _join(path, f.name)
-        if dataclasses.is_dataclass(f.type) and isinstance(value, dict):
-            _check_ranges(value, f.type, here)
-        if "choices" in f.metadata and value not in f.metadata["choices"]:
-            words = ", ".join("null" if c is None else c for c in f.metadata["choices"])
-            raise ConfigError(f"{here}={value!r} must be one of: {words}.")
-        if "range" not in f.metadata or isinstance(value, bool) or value is None:
-            continue
-        low, high, above = f.metadata["range"]
-        if value < low or (above and value == low) or (high is not None and value > high):
-            words = f"{'>' if above else '>='} {low}" if high is None else (
-                f"in {'(' if above else '['}{low}, {high}]")  # fmt: skip
-            raise ConfigError(f"{here}={value} must be {words}.")
+def _check_ranges(plain: dict, typed: DictConfig, path: str) -> None:
+    """The ranges and choices of the keys of src/config.py's dataclasses (`within`, `one_of`)."""
+    for key, value in plain.items():
+        if isinstance(value, dict):
+            _check_ranges(value, typed._get_node(key), _join(path, key))
+    kind = OmegaConf.get_type(typed)
+    for f in dataclasses.fields(kind) if dataclasses.is_dataclass(kind) else ():
+        value, (valid, words) = plain.get(f.name), f.metadata.get("valid", (None, ""))
+        if valid is not None and not valid(value):
+            raise ConfigError(f"{_join(path, f.name)}={value!r} must be {words}.")
 
 
-def _resolved(node: DictConfig, path: str = "") -> dict:
+def _resolved(node: DictConfig) -> dict:
     """`node` resolved to plain values, without Hydra's node and the keys pointing at the run
     folder (not set up yet); a typed key whose interpolation gives another type is refused."""
     out = {}
@@ -284,12 +289,10 @@ def _resolved(node: DictConfig, path: str = "") -> dict:
             if isinstance(value, ListConfig):
                 value = OmegaConf.to_container(value, resolve=True)
         except ValidationError as err:
-            words = _words(node._get_node(key), err)
-            raise ConfigError(f"{_join(path, key)}={err.value!r} must be {words}.") from None
-        except Exception:  # noqa: BLE001 (a key that points at the run folder, not set up yet)
+            raise ConfigError(f"{err.full_key}={err.value!r} must be {_words(err)}.") from None
+        except Exception:  # noqa: BLE001 (the run folder, or a key its config leaves unset)
             continue
-        nested = isinstance(value, DictConfig)
-        out[key] = _resolved(value, _join(path, key)) if nested else value
+        out[key] = _resolved(value) if isinstance(value, DictConfig) else value
     return out
 
 

@@ -122,10 +122,8 @@ def test_cli_training_a_baseline_is_refused_before_anything_is_written(
         data_dir=synthetic_data_dir,
         log_dir=tmp_path,
     )
-    line = _error_line(proc)
-    assert line == (
-        "error: zero_velocity has no trainable parameters, so there is nothing to train; "
-        "evaluate it with `python -m src.eval model=zero_velocity data=synthetic` instead."
+    refused(
+        _error_line(proc), "zero_velocity", "python -m src.eval model=zero_velocity data=synthetic"
     )
     # Nothing of the run's own (Hydra's record of a refused run, .hydra/ and the log, is the
     # business of the run-folder rules, issue #13 row 11).
@@ -139,8 +137,9 @@ def test_cli_training_a_baseline_is_refused_before_anything_is_written(
 def test_training_a_running_average_is_refused(overrides, train_cfg):
     from src.lit.resume import prepare_training
 
-    with pytest.raises(ConfigError, match=r"running_avg_\d has no trainable parameters.*src\.eval"):
+    with pytest.raises(ConfigError) as err:
         prepare_training(train_cfg(*overrides), [], {})
+    refused(str(err.value), overrides[0].split("=")[1], "python -m src.eval")
 
 
 # ------------------------------------------------------------ a refusal in the run's train.log
@@ -364,21 +363,18 @@ def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic
 
 
 @pytest.mark.parametrize(
-    ("override", "message"),
+    ("override", "named"),
     [
-        (
-            "+model.net.kernal=[3,3]",
-            r"model\.net\.kernal is not an argument of .*ConvSeq2Seq.* "
-            r"model\.net\.kernel\?",
-        ),
-        ("+sampling.ete=0.5", r"sampling\.ete is not an argument of .*Constant.* sampling\.eta"),
+        ("+model.net.kernal=[3,3]", ["model.net.kernal", "ConvSeq2Seq", "model.net.kernel?"]),
+        ("+sampling.ete=0.5", ["sampling.ete", "eta_schedule.Constant", "sampling.eta?"]),
     ],
 )
-def test_added_keys_are_checked_against_their_constructor(override, message, train_cfg):
+def test_added_keys_are_checked_against_their_constructor(override, named, train_cfg):
     from src.lit.resume import prepare_training
 
-    with pytest.raises(ConfigError, match=message):
+    with pytest.raises(ConfigError) as err:
         prepare_training(train_cfg(override), [], {})
+    refused(str(err.value), *named)
 
 
 @pytest.mark.parametrize("experiment", sorted(p.stem for p in (CONF / "experiment").glob("*.yaml")))
@@ -434,8 +430,7 @@ def test_plot_errors_unknown_argument_names_the_close_one(tmp_path):
     proc = run_module(
         "src.plot_errors", "results=[a.json]", "metrc=mpjpe", data_dir=tmp_path, log_dir=tmp_path
     )
-    assert proc.returncode == 2
-    assert proc.stderr.startswith("error: metrc: no such key. Did you mean metric?")
+    refused(_error_line(proc), "metrc", "metric?")
     assert proc.stderr.count("\n") == 1
 
 
@@ -545,7 +540,6 @@ def test_installed_without_the_configs_is_one_line(tmp_path, monkeypatch, capsys
     import src.cli as cli
     from src.eval import main
 
-    cli.check_installation()  # the clone has its configs
     monkeypatch.setattr(cli, "CONF_DIR", tmp_path / "site-packages" / "conf")
     monkeypatch.setattr(sys, "argv", ["src.eval", "model=zero_velocity", "data=synthetic"])
     with pytest.raises(SystemExit) as info:
