@@ -66,16 +66,8 @@ def checkpoint_to_resume(cfg: DictConfig) -> Path | None:
     return target
 
 
-def _get(cfg: DictConfig, key: str) -> Any:
-    """The resolved value at a dotted key, as plain Python, or _ABSENT."""
-    value = OmegaConf.select(cfg, key, default=_ABSENT)
-    if isinstance(value, (DictConfig, ListConfig)):
-        return OmegaConf.to_container(value, resolve=True)
-    return value
-
-
 def _raw(tree: Any, key: str) -> Any:
-    """The unresolved value at a dotted key of a plain container, or _ABSENT."""
+    """The value at a dotted key of a plain container, or _ABSENT."""
     for part in key.split("."):
         if not isinstance(tree, dict) or part not in tree:
             return _ABSENT
@@ -94,22 +86,17 @@ def _put(cfg: DictConfig, key: str, value: Any) -> None:
         del node[leaf]
 
 
-def _shown(value: Any) -> Any:
-    return "absent" if value is _ABSENT else value
-
-
-def _leaves(root: DictConfig, key: str, tree: Any = _ABSENT) -> dict[str, Any]:
-    """The resolved leaves under `key` but the FROM_HERE and FREE ones (which may point at
-    Hydra state not set up yet), by dotted key."""
-    if tree is _ABSENT:
-        tree = OmegaConf.to_container(root, resolve=False)
-        tree = _raw(tree, key) if key else tree
+def _leaves(cfg: DictConfig, key: str) -> dict[str, Any]:
+    """The resolved leaves under a dotted key ("": all), by key, but the FROM_HERE and FREE
+    ones (which may point at Hydra state not set up yet); _ABSENT for a key not there."""
     if _under(key, FROM_HERE) or _free(key):
         return {}
-    if not (isinstance(tree, dict) and tree):
-        return {key: _get(root, key)}
-    subs = {f"{key}.{sub}".lstrip("."): value for sub, value in tree.items()}
-    return {k: v for sub, value in subs.items() for k, v in _leaves(root, sub, value).items()}
+    node = OmegaConf.select(cfg, key, default=_ABSENT) if key else cfg
+    if isinstance(node, DictConfig) and len(node):
+        return {k: v for sub in node for k, v in _leaves(cfg, f"{key}.{sub}".lstrip(".")).items()}
+    if isinstance(node, (DictConfig, ListConfig)):
+        node = OmegaConf.to_container(node, resolve=True)
+    return {key: "absent" if node is _ABSENT else node}
 
 
 def restore_run(
@@ -136,9 +123,9 @@ def restore_run(
         hydra_yaml = OmegaConf.load(run_dir / ".hydra" / "hydra.yaml")
         run_choices = OmegaConf.to_container(hydra_yaml.hydra.runtime.choices)
 
-    raw = OmegaConf.to_container(cfg, resolve=False)
+    raw, saved_raw = OmegaConf.to_container(cfg), OmegaConf.to_container(saved)
     # Keys added to the project since the run: today's defaults.
-    restored = OmegaConf.create({**raw, **OmegaConf.to_container(saved, resolve=False)})
+    restored = OmegaConf.create({**raw, **saved_raw})
     for key in FROM_HERE:  # unresolved: they point at this run's folder, not yet created
         _put(restored, key, _raw(raw, key))
     _put(restored, "ckpt_path", str(ckpt))
@@ -162,23 +149,21 @@ def restore_run(
             _put(restored, key, _raw(raw, key))
             # A trainer=... option brings the Trainer, not its numerics: keep the run's.
             for kept in (k for k in COMPUTES if _under(k, (key,))):
-                _put(restored, kept, _get(saved, kept))
+                _put(restored, kept, _raw(saved_raw, kept))
         elif group in choices and run_choices is not None:  # compared by name
             if run_choices.get(group) != choices.get(group):
                 conflicts.append(f"{text}: the run used {group}={run_choices.get(group)}")
-        elif group in choices:  # compared by value; experiment=... can set any key
-            node = key if isinstance(OmegaConf.select(cfg, key), DictConfig) else ""
-            now, then = _leaves(cfg, node), _leaves(saved, node)
+        elif group in choices or not from_checkpoint or key.split(".")[0] in saved:
+            # By value (else the command line's); a group option by the run's keys under it,
+            # all of them for one that is no key (experiment=... can set any).
+            option = group in choices and not isinstance(OmegaConf.select(cfg, key), DictConfig)
+            now, then = _leaves(cfg, "" if option else key), _leaves(saved, "" if option else key)
+            origin = f" (from {text})" if group in choices else ""
             conflicts += [
-                f"{k}: checkpoint {then[k]}, command line {_shown(now.get(k, _ABSENT))} "
-                f"(from {text})"
+                f"{k}: checkpoint {then[k]}, command line {now.get(k, 'absent')}{origin}"
                 for k in sorted(then)
-                if now.get(k, _ABSENT) != then[k]
+                if now.get(k, "absent") != then[k]
             ]
-        elif not from_checkpoint or key.split(".")[0] in saved:  # else the command line's
-            old, new = _get(saved, key), _get(cfg, key)
-            if old != new:
-                conflicts.append(f"{key}: checkpoint {_shown(old)}, command line {_shown(new)}")
     if conflicts:
 
         def word(key: str) -> str:  # "trainer.* except trainer.precision"
@@ -217,14 +202,12 @@ def prepare_training(
 
 
 def describe(resume: Resume, iteration: int) -> str:
-    if resume.from_checkpoint:  # no run folder around it: the folder above names no run
-        start = (
-            f"resuming from {resume.checkpoint} at iteration {iteration}, with the config "
-            "sections stored in the checkpoint (no config.yaml beside it)"
-        )
-    else:
-        start = (
-            f"resuming the run {resume.run_dir} at iteration {iteration} from "
-            f"{resume.checkpoint}, with its settings ({resume.run_dir / 'config.yaml'})"
-        )
-    return f"{start}; command-line overrides on top: {', '.join(resume.applied) or 'none'}"
+    settings = (
+        "the config sections stored in it"
+        if resume.from_checkpoint
+        else (resume.run_dir / "config.yaml")
+    )
+    return (
+        f"resuming from {resume.checkpoint} at iteration {iteration} with the settings of "
+        f"{settings}; command-line overrides on top: {', '.join(resume.applied) or 'none'}"
+    )
