@@ -31,9 +31,9 @@ from src.lit.factory import ConfigError, build_datamodule, build_module, build_t
 from src.lit.media_callback import FrameStripLogger
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog, iteration_bar
-from src.lit.resume import describe, prepare_training
 from src.lit.run_folders import holds_run
 from src.metrics.averages import averages
+from src.prepare import describe, prepare_training
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ def train(cfg: DictConfig) -> float:
     choices = OmegaConf.to_container(hydra_cfg.runtime.choices) if hydra_cfg else {}
     cfg, resume = prepare_training(cfg, overrides, choices)
     out_dir = Path(cfg.paths.output_dir)
-    # A resume from the command line continues in its run's folder (run_folders.PrepareRun).
+    # A resume from the command line continues in its run's folder (src.prepare.PrepareRun).
     in_place = resume is not None and out_dir.resolve() == resume.run_dir.resolve()
     # E.g. a folder given in-process that holds a run; DDP's other ranks use rank 0's folder.
     if rank_zero_only.rank == 0 and holds_run(out_dir) and not in_place:

@@ -17,7 +17,7 @@ from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
-from src.lit.resume import prepare_training
+from src.prepare import prepare_training
 from tests.conftest import compose_config, refused, run_module
 from tests.test_resume import TINY
 

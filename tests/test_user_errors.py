@@ -137,7 +137,7 @@ def test_cli_training_a_baseline_is_refused_before_anything_is_written(
     "overrides", [["model=running_avg_2", "adversarial=none"], ["model=running_avg_4"]]
 )
 def test_training_a_running_average_is_refused(overrides, train_cfg):
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     with pytest.raises(ConfigError, match=r"running_avg_\d has no trainable parameters.*src\.eval"):
         prepare_training(train_cfg(*overrides), [], {})
@@ -375,7 +375,7 @@ def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic
     ],
 )
 def test_added_keys_are_checked_against_their_constructor(override, message, train_cfg):
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     with pytest.raises(ConfigError, match=message):
         prepare_training(train_cfg(override), [], {})
