@@ -3,7 +3,8 @@ resumed run's config, its own with the command line on top (`restore_run`: where
 this command's, FROM_HERE; the length, logging and the Trainer's settings may change, FREE; an
 override of anything else is refused naming each key with both values); every job of a training
 sweep checked before the first starts (`check_sweep`); the run folder claimed, or a resumed
-run's own folder continued."""
+run's own folder continued. And `compose_config`: a config composed in-process as
+`python -m src.<name>` would compose it (report, notebooks, tests)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ from pathlib import Path
 from typing import Any
 
 import hydra
+from hydra import compose, initialize_config_dir
 from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
 from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
@@ -23,8 +26,32 @@ from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict, read_write
 
 from src.config import ConfigError, check
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
-from src.lit.factory import build_parts
-from src.lit.run_folders import USER_ERRORS, claim_run_folder, refuse
+from src.lit.factory import PROJECT_ROOT, build_parts
+from src.lit.run_folders import USER_ERRORS, claim_run_folder, refuse, register_resolvers
+
+CONF_DIR = PROJECT_ROOT / "conf"
+
+
+def compose_config(
+    config_name: str,
+    overrides: list[str],
+    output_dir: str | Path,
+    data_dir: str | Path | None = None,
+) -> DictConfig:
+    """The config of `conf/<config_name>.yaml` with `overrides`, run folder `output_dir`; sets
+    Hydra's global state so that `${hydra:...}` interpolations resolve, as in a real run."""
+    register_resolvers()
+    GlobalHydra.instance().clear()
+    extra = [] if data_dir is None else [f"paths.data_dir={data_dir}"]
+    overrides = [f"paths.log_dir={output_dir}", *extra, *overrides]
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name, overrides=overrides, return_hydra_config=True)
+    with open_dict(cfg):
+        cfg.hydra.runtime.output_dir = str(output_dir)
+        cfg.hydra.job.num = 0
+    HydraConfig().set_config(cfg)
+    return cfg
+
 
 # "hydra": in a config composed in-process (and so in the config.yaml of such a run).
 FROM_HERE = ("hydra", "paths", "ckpt_path", "resume", "trainer.default_root_dir",

@@ -27,8 +27,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry
 from src.lit import checkpoints as ck
-from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
+from src.lit.factory import ConfigError, build_datamodule, build_module, git_commit
 from src.lit.media_callback import FrameStripLogger
+from src.lit.parts import instantiate
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog, iteration_bar
 from src.lit.run_folders import holds_run
@@ -113,7 +114,7 @@ def train(cfg: DictConfig) -> float:
     # Training time over all of a run's segments: kept in the checkpoint (older ones lack it).
     timer = Timer()
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
-    trainer: L.Trainer = build_trainer(
+    trainer: L.Trainer = instantiate(
         cfg.trainer,
         # The schedule: one iteration is one step, the training batches an endless stream.
         max_steps=cfg.iterations,

@@ -185,7 +185,7 @@ def test_published_numbers_only_beside_results_on_their_dataset():
 
 @pytest.fixture(scope="module")
 def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
-    from src.lit.factory import build_for_evaluation
+    from src.results import build_for_evaluation
 
     cfg = compose_config(
         "visualize",
@@ -279,7 +279,7 @@ def test_allow_partial_beside_a_checkpoint_is_taken(entry, tmp_path, monkeypatch
     """src.eval ckpt_path=... data.allow_partial=true used to be refused, asking for a data=
     option that the checkpoint fixes. Whether this machine's copy lacks files is a fact of the
     machine (paths.allow_partial, which the checkpoint's data config takes:
-    factory.build_for_evaluation): the override sets it."""
+    results.build_for_evaluation): the override sets it."""
     from src.cli import hydra_entry
 
     called = []
