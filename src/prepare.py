@@ -238,15 +238,17 @@ def prepare_training(
 
 
 def describe(resume: Resume, iteration: int) -> str:
-    settings = (
-        "the config sections stored in it"
-        if resume.from_checkpoint
-        else (resume.run_dir / "config.yaml")
-    )
-    return (
-        f"resuming from {resume.checkpoint} at iteration {iteration} with the settings of "
-        f"{settings}; command-line overrides on top: {', '.join(resume.applied) or 'none'}"
-    )
+    if resume.from_checkpoint:  # no run folder around it: the folder above names no run
+        start = (
+            f"resuming from {resume.checkpoint} at iteration {iteration}, with the config "
+            "sections stored in the checkpoint (no config.yaml beside it)"
+        )
+    else:
+        start = (
+            f"resuming the run {resume.run_dir} at iteration {iteration} from "
+            f"{resume.checkpoint}, with its settings ({resume.run_dir / 'config.yaml'})"
+        )
+    return f"{start}; command-line overrides on top: {', '.join(resume.applied) or 'none'}"
 
 
 def _given(config: DictConfig, key: str) -> bool:

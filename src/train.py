@@ -81,8 +81,8 @@ def train(cfg: DictConfig) -> float:
     if cfg.ckpt_path:
         ckpt = ck.read_checkpoint(cfg.ckpt_path)
         ck.require_resumable(ckpt, cfg.ckpt_path)
-        ck.check_compatible(ckpt, cfg, cfg.ckpt_path)
-        ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
+        # Model and data are the run's own (restored above): only the data files may differ.
+        ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path)
         done = int(ckpt["global_step"])
         if done >= cfg.iterations:
             raise ConfigError(

@@ -154,7 +154,7 @@ def test_a_checkpoint_away_from_its_run_folder_resumes_with_the_command_lines_sc
     ckpt = tmp_path / "copied.ckpt"
     torch.save({"motion": {"config": sections}, "state_dict": {}}, ckpt)
     cfg, resume = _restore(tmp_path / "new", synthetic_data_dir, f"ckpt_path={ckpt}", *RUN)
-    assert describe(resume, 3).startswith(f"resuming from {ckpt} at iteration 3 with the settings")
+    assert describe(resume, 3).startswith(f"resuming from {ckpt} at iteration 3, with the config")
     assert (cfg.iterations, cfg.val_every, cfg.seed) == (6, 2, 7)
     assert cfg.model.net.hidden == 16 and cfg.model.optimizer.lr == 0.01
     # What the checkpoint stores still may not change.
