@@ -72,8 +72,8 @@ class Budget:
 def prepare_data(data: list[str], data_dir: Path, work: Path) -> float:
     """Unpack and parse the archives (or write the synthetic data) before any run is timed:
     the first run would pay it, once."""
-    from src.lit.compose import compose_config
     from src.lit.factory import build_datamodule
+    from src.prepare import compose_config
 
     start = time.perf_counter()
     for exp in EXPERIMENTS:
@@ -90,8 +90,8 @@ def count_host_syncs(
     """Host syncs per iteration of `src.train experiment=li2018_h36m` (synthetic data, the
     default settings, eager), counted over iterations skip+1 .. skip+window by the warnings of
     `torch.cuda.set_sync_debug_mode("warn")`, by the line that caused them."""
-    from src.lit.compose import compose_config
     from src.lit.predictor import MotionPredictor
+    from src.prepare import compose_config
     from src.train import train
 
     n = skip + window + 1

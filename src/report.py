@@ -22,8 +22,8 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry, silence_false_warnings
-from src.lit.compose import compose_config
 from src.lit.factory import ConfigError, git_commit
+from src.prepare import compose_config
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes
 from src.reporting.page import replace_block, write_page

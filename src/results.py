@@ -12,11 +12,12 @@ from pathlib import Path
 
 import lightning as L
 import pandas as pd
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
-from src.config import check
+from src.config import ConfigError, check
 from src.data.files import atomic_write
-from src.lit.factory import build_for_evaluation, build_trainer, git_commit
+from src.lit.factory import build_module, build_test_data, git_commit, load_trained
+from src.lit.parts import instantiate
 from src.lit.run_folders import training_run_name
 from src.metrics.averages import averages
 from src.metrics.euler_error import horizon_frame_indices
@@ -211,6 +212,36 @@ def build_tables(module, dm, model_cfg: dict, dataset: str) -> list[dict]:
     return tables
 
 
+def build_for_evaluation(cfg: DictConfig):
+    """(test windows' datamodule, module) of src.eval and src.visualize: the trained model of
+    `cfg.ckpt_path` on its own data config, or the baseline `cfg.model` on `cfg.data`."""
+    if cfg.ckpt_path:
+        module = load_trained(cfg.ckpt_path, cfg)
+        data_cfg = OmegaConf.create(module.run_info["config"]["data"])
+        # Where data lives, and whether its copy lacks files, are facts of this machine.
+        for key in ("data_dir", "archive_dir", "allow_partial"):
+            data_cfg[key] = cfg.paths[key]
+        if cfg.get("data") is not None:  # evaluation settings (protocol, windows) may differ
+            for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
+                data_cfg[key] = cfg.data[key]
+        return build_test_data(cfg, data_cfg, module.normalizer), module
+    if cfg.get("model") is None or cfg.get("data") is None:
+        raise ConfigError(
+            "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
+            "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
+        )
+    dm = build_test_data(cfg)
+    config = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in ("model", "data")}
+    module = build_module(cfg, dm, run_info={"commit": git_commit(), "config": config})
+    if module.trainable:
+        raise ConfigError(
+            f"model={cfg.model.name} is a trainable network and no ckpt_path was given; the "
+            "numbers of an untrained network mean nothing. Train it with `python -m src.train "
+            f"model={cfg.model.name} ...` and pass ckpt_path=<its checkpoint>."
+        )
+    return dm, module.eval()
+
+
 def evaluate(cfg: DictConfig) -> dict:
     check(cfg, "eval")
     L.seed_everything(cfg.seed, workers=True)
@@ -218,7 +249,7 @@ def evaluate(cfg: DictConfig) -> dict:
     dm, module = (score_predictions if cfg.get("predictions") else build_for_evaluation)(cfg)
     model_cfg = module.run_info["config"]["model"]
     dataset = module.run_info["config"]["data"]["name"]
-    trainer = build_trainer(
+    trainer = instantiate(
         cfg.trainer, logger=False, callbacks=[], enable_checkpointing=False, max_epochs=1
     )
     trainer.test(module, datamodule=dm, verbose=False)

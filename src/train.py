@@ -27,13 +27,14 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry
 from src.lit import checkpoints as ck
-from src.lit.factory import ConfigError, build_datamodule, build_module, build_trainer, git_commit
+from src.lit.factory import ConfigError, build_datamodule, build_module, git_commit
 from src.lit.media_callback import FrameStripLogger
+from src.lit.parts import instantiate
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog, iteration_bar
-from src.lit.resume import describe, prepare_training
 from src.lit.run_folders import holds_run
 from src.metrics.averages import averages
+from src.prepare import describe, prepare_training
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +62,7 @@ def train(cfg: DictConfig) -> float:
     choices = OmegaConf.to_container(hydra_cfg.runtime.choices) if hydra_cfg else {}
     cfg, resume = prepare_training(cfg, overrides, choices)
     out_dir = Path(cfg.paths.output_dir)
-    # A resume from the command line continues in its run's folder (run_folders.PrepareRun).
+    # A resume from the command line continues in its run's folder (src.prepare.PrepareRun).
     in_place = resume is not None and out_dir.resolve() == resume.run_dir.resolve()
     # E.g. a folder given in-process that holds a run; DDP's other ranks use rank 0's folder.
     if rank_zero_only.rank == 0 and holds_run(out_dir) and not in_place:
@@ -80,8 +81,8 @@ def train(cfg: DictConfig) -> float:
     if cfg.ckpt_path:
         ckpt = ck.read_checkpoint(cfg.ckpt_path)
         ck.require_resumable(ckpt, cfg.ckpt_path)
-        ck.check_compatible(ckpt, cfg, cfg.ckpt_path)
-        ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path, actions=dm.actions)
+        # Model and data are the run's own (restored above): only the data files may differ.
+        ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path)
         done = int(ckpt["global_step"])
         if done >= cfg.iterations:
             raise ConfigError(
@@ -113,7 +114,7 @@ def train(cfg: DictConfig) -> float:
     # Training time over all of a run's segments: kept in the checkpoint (older ones lack it).
     timer = Timer()
     total_known = ckpt is None or timer.state_key in ckpt.get("callbacks", {})
-    trainer: L.Trainer = build_trainer(
+    trainer: L.Trainer = instantiate(
         cfg.trainer,
         # The schedule: one iteration is one step, the training batches an endless stream.
         max_steps=cfg.iterations,

@@ -12,9 +12,10 @@ from omegaconf import DictConfig
 from src.cli import hydra_entry
 from src.config import check
 from src.data.base import MotionDataModule
-from src.lit.factory import ConfigError, build_for_evaluation
+from src.lit.factory import ConfigError
 from src.metrics.kinematics import Skeleton
 from src.plots import animate, frame_strip, window_rows
+from src.results import build_for_evaluation
 
 
 def select_window(dm: MotionDataModule, action: str, window: int) -> int:

@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from omegaconf import DictConfig
 
-from src.lit.compose import compose_config  # noqa: F401  (re-exported for the tests)
 from src.lit.run_folders import register_resolvers
+from src.prepare import compose_config  # noqa: F401  (re-exported for the tests)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"

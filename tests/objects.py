@@ -22,14 +22,14 @@ from omegaconf import DictConfig
 
 from src.config import check
 from src.data.errors import DataError  # noqa: F401  (what objects.validate may raise)
-from src.lit.compose import compose_config
 from src.lit.factory import (  # noqa: F401  (ConfigError: what a refused config raises)
     ConfigError,
     build_datamodule,
-    build_for_evaluation,
     build_module,
     build_parts,
 )
+from src.prepare import compose_config
+from src.results import build_for_evaluation
 
 
 # ------------------------------------------------------------------------------ threads

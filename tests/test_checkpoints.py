@@ -18,8 +18,8 @@ from src.lit.checkpoints import (
     read_checkpoint,
     require_resumable,
 )
-from src.lit.compose import compose_config
 from src.lit.predictor import MotionPredictor
+from src.prepare import compose_config
 from src.train import train
 from tests.objects import QUIET, TINY_CONV
 

@@ -78,7 +78,7 @@ def test_out_of_range_values_are_rejected_before_training(
     override, named, tmp_path, synthetic_data_dir
 ):
     from src.lit.factory import ConfigError
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     extra = ["sampling.steps=0"] if override == "sampling=linear" else []
     cfg = compose_config(
@@ -170,7 +170,7 @@ def test_values_of_the_wrong_type_are_rejected_before_training(
     key's type while composing (src/config.py's schema), the checks the rest."""
     from src.cli import hydra_error
     from src.lit.factory import ConfigError
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     key, value = override.split("=")
     try:

@@ -17,7 +17,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from src.lit.factory import build_for_evaluation
+from src.results import build_for_evaluation
 from tests.conftest import ROOT, compose_config, run_module
 
 TINY_DDP = [

@@ -9,9 +9,9 @@ import lightning as L
 import pytest
 import torch
 
-from src.lit.compose import compose_config
 from src.lit.factory import build_datamodule, build_module
 from src.metrics.euler_error import EulerAngleError
+from src.prepare import compose_config
 
 OBSERVED, FUTURE = 50, 25
 # Predicted frame k lies (k + 1) * 40 ms after the last observed frame (protocol 4.3).

@@ -53,8 +53,8 @@ def test_the_example_model_trains_and_every_command_takes_it(tmp_path, synthetic
 
     from src.eval import evaluate
     from src.inference import MotionForecaster
-    from src.lit.factory import build_for_evaluation
     from src.plots import window_rows
+    from src.results import build_for_evaluation
     from src.train import train
     from src.visualize import select_window
 

@@ -16,9 +16,9 @@ from src.data.normalization import Normalizer
 from src.data.synthetic import write_synthetic_h36m
 from src.inference import COMPILED_SHAPES, InferenceInputError, MotionForecaster
 from src.lit.checkpoints import CheckpointError, read_checkpoint
-from src.lit.compose import compose_config
 from src.models.conv_s2s import ConvSeq2Seq
 from src.models.gru_s2s import GRUSeq2Seq
+from src.prepare import compose_config
 from src.train import train
 
 F = 99  # H3.6M raw columns

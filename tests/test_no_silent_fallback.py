@@ -166,7 +166,7 @@ def test_every_boolean_key_set_to_no_is_refused_or_false_never_true(
     from omegaconf import OmegaConf
 
     from src.config import check
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
     from tests.conftest import compose_config
 
     cfg = compose_config(config_name, [*base, f"{key}=no"], tmp_path)
@@ -205,7 +205,7 @@ def test_every_boolean_key_set_to_no_is_refused_or_false_never_true(
     ],
 )  # fmt: skip
 def test_rows_3_4_values_of_the_wrong_type_are_refused_naming_the_type(overrides, named, train_cfg):
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     with pytest.raises(ConfigError) as err:
         prepare_training(train_cfg(*overrides), [], {})
@@ -214,7 +214,7 @@ def test_rows_3_4_values_of_the_wrong_type_are_refused_naming_the_type(overrides
 
 def test_row_3_long_term_false_builds_the_ablation(train_cfg, synthetic_data_dir):
     from src.lit.factory import build_datamodule, build_module
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     sizes = {}
     for value in ("true", "false"):
@@ -248,7 +248,7 @@ def test_every_key_of_every_shipped_config_has_a_declared_type(tmp_path):
 def test_row_5_a_gpu_asked_for_where_there_is_none_is_one_line(train_cfg, monkeypatch):
     from lightning.pytorch.accelerators import CUDAAccelerator, MPSAccelerator
 
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     for kind in (CUDAAccelerator, MPSAccelerator):  # this machine, whatever it has
         monkeypatch.setattr(kind, "is_available", staticmethod(lambda: False))
@@ -274,10 +274,10 @@ def test_row_5_cli_trainer_gpu_without_a_gpu_is_one_line(tmp_path, synthetic_dat
 
 
 def test_row_5_a_trainer_setting_lightning_refuses_is_a_config_error(train_cfg):
-    from src.lit.factory import build_trainer
+    from src.lit.parts import instantiate
 
     with pytest.raises(ConfigError, match=r"Trainer: `Trainer\(devices=0\)` value is not a valid"):
-        build_trainer(train_cfg("trainer.devices=0").trainer)
+        instantiate(train_cfg("trainer.devices=0").trainer)
 
 
 # ---------------------------------------------------- rows 6 and 8: resumes
@@ -309,7 +309,7 @@ def test_row_6_a_resumed_run_goes_under_the_outputs_folder_of_its_run(
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import OmegaConf
 
-    from src.lit.resume import restore_run
+    from src.prepare import restore_run
     from tests.conftest import compose_config
 
     elsewhere = tmp_path / "elsewhere"
@@ -333,7 +333,7 @@ def test_row_8_a_refused_resume_says_which_keys_may_change(tmp_path, synthetic_d
     from omegaconf import OmegaConf
 
     from src.lit.checkpoints import CheckpointError
-    from src.lit.resume import restore_run
+    from src.prepare import restore_run
     from tests.conftest import compose_config
 
     run = _fake_run(tmp_path / "run", synthetic_data_dir, *RUN)

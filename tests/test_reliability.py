@@ -17,7 +17,7 @@ from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
 from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
-from src.lit.resume import prepare_training
+from src.prepare import prepare_training
 from tests.conftest import compose_config, refused, run_module
 from tests.test_resume import TINY
 
@@ -203,7 +203,7 @@ def _eval_cfg(ckpt: Path, out: Path, data_dir: Path, *overrides: str):
 def test_eval_refuses_a_checkpoint_of_another_model_or_dataset(
     overrides, message, trained, h36m_dir, tmp_path
 ):
-    from src.lit.factory import build_for_evaluation
+    from src.results import build_for_evaluation
 
     cfg = _eval_cfg(trained / "checkpoints" / "last.ckpt", tmp_path, h36m_dir, *overrides)
     with pytest.raises(CheckpointError, match=message):

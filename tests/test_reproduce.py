@@ -13,7 +13,7 @@ import pytest
 import yaml
 from omegaconf import OmegaConf
 
-from src.lit.compose import compose_config
+from src.prepare import compose_config
 from tests.conftest import CONF, run_module
 
 CORE = ["li2018_h36m", "li2018_cmu", "martinez2017_res_sup"]

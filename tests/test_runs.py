@@ -20,11 +20,10 @@ from omegaconf import OmegaConf
 
 from src.config import check_schedule
 from src.lit.checkpoints import CheckpointError
-from src.lit.compose import compose_config
 from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
-from src.lit.resume import describe, restore_run
 from src.lit.run_folders import claim_run_folder
+from src.prepare import compose_config, describe, restore_run
 from tests.conftest import ROOT, run_in_one_process, run_interrupted
 from tests.test_resume import TINY
 
@@ -591,7 +590,7 @@ def test_fast_dev_run_writes_nothing_heavy_where_the_readme_says(tmp_path, synth
 
 def test_resume_names_the_run_folder_or_its_checkpoints_folder(tmp_path):
     """resume=<run>/checkpoints used to look for <run>/checkpoints/checkpoints/last.ckpt."""
-    from src.lit.resume import checkpoint_to_resume
+    from src.prepare import checkpoint_to_resume
 
     last = tmp_path / "run" / "checkpoints" / "last.ckpt"
     last.parent.mkdir(parents=True)
@@ -625,7 +624,7 @@ def test_an_atomic_write_leaves_the_old_file_or_the_new_one(tmp_path):
 def test_a_training_config_is_restored_and_checked_once(tmp_path, synthetic_data_dir, monkeypatch):
     """The command line's callback restores and checks a resumed run's config before its
     folder exists; src.train then finds it prepared (both used to do it, at every start)."""
-    import src.lit.resume as resume
+    import src.prepare as resume
     import src.train
     from src.cli import hydra_entry
 
@@ -652,7 +651,7 @@ def test_a_training_config_is_restored_and_checked_once(tmp_path, synthetic_data
 def test_resume_with_a_length_that_does_not_fit_suggests_lengths_only(tmp_path, synthetic_data_dir):
     """`resume=<run> iterations=7` used to suggest val_every=7, which the resume refuses (a
     resumed run keeps its val_every): only lengths are suggested."""
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     run = _fake_run(tmp_path / "run", synthetic_data_dir, *RUN)  # val_every=2
     overrides = [f"resume={run}", "iterations=7"]

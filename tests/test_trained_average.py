@@ -12,7 +12,7 @@ from tensorboard.plugins.custom_scalar import layout_pb2
 
 from src.data.synthetic import write_synthetic_h36m
 from src.eval import evaluate
-from src.lit.compose import compose_config
+from src.prepare import compose_config
 from src.train import train
 
 # The synthetic files read as an H3.6M copy (data=synthetic would write any dropped file anew).

@@ -24,8 +24,8 @@ import lightning as L
 import pytest
 import torch
 
-from src.lit.compose import compose_config
 from src.lit.factory import build_datamodule, build_module
+from src.prepare import compose_config
 from tests.objects import TINY_CONV, fit_batches
 
 TINY_G = ["model=conv_s2s", "model.net.nf=2", "model.net.d_z=8", "data.batch_size=4"]

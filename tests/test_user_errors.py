@@ -135,7 +135,7 @@ def test_cli_training_a_baseline_is_refused_before_anything_is_written(
     "overrides", [["model=running_avg_2", "adversarial=none"], ["model=running_avg_4"]]
 )
 def test_training_a_running_average_is_refused(overrides, train_cfg):
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     with pytest.raises(ConfigError) as err:
         prepare_training(train_cfg(*overrides), [], {})
@@ -184,7 +184,7 @@ def test_published_numbers_only_beside_results_on_their_dataset():
 
 @pytest.fixture(scope="module")
 def synthetic_zero_velocity(tmp_path_factory, synthetic_data_dir):
-    from src.lit.factory import build_for_evaluation
+    from src.results import build_for_evaluation
 
     cfg = compose_config(
         "visualize",
@@ -278,7 +278,7 @@ def test_allow_partial_beside_a_checkpoint_is_taken(entry, tmp_path, monkeypatch
     """src.eval ckpt_path=... data.allow_partial=true used to be refused, asking for a data=
     option that the checkpoint fixes. Whether this machine's copy lacks files is a fact of the
     machine (paths.allow_partial, which the checkpoint's data config takes:
-    factory.build_for_evaluation): the override sets it."""
+    results.build_for_evaluation): the override sets it."""
     from src.cli import hydra_entry
 
     called = []
@@ -370,7 +370,7 @@ def test_cli_added_key_that_no_constructor_takes_is_one_line(tmp_path, synthetic
     ],
 )
 def test_added_keys_are_checked_against_their_constructor(override, named, train_cfg):
-    from src.lit.resume import prepare_training
+    from src.prepare import prepare_training
 
     with pytest.raises(ConfigError) as err:
         prepare_training(train_cfg(override), [], {})

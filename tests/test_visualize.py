@@ -9,7 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
-from src.lit.factory import ConfigError, build_for_evaluation
+from src.lit.factory import ConfigError
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.plot_errors import plot_errors
 from src.plots import (
@@ -21,7 +21,7 @@ from src.plots import (
     strip_frames,
     window_rows,
 )
-from src.results import result_table
+from src.results import build_for_evaluation, result_table
 from src.visualize import select_window
 from tests.conftest import compose_config, refused, run_module
 

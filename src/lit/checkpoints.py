@@ -297,16 +297,9 @@ def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
         )
 
 
-def check_normalizer(
-    ckpt: dict, normalizer: Normalizer, path: str | Path, actions: list[str] | None = None
-) -> None:
-    """Refuse data whose statistics or actions differ: resuming on them changes the model."""
-    saved_actions = ckpt["motion"]["actions"]  # in every version's checkpoint, as normalizer.*
-    if actions is not None and list(actions) != saved_actions:
-        raise CheckpointError(
-            f"actions: checkpoint {path} was trained on actions {saved_actions}, the data "
-            f"config gives {list(actions)}. Set data.actions as in the run that wrote it."
-        )
+def check_normalizer(ckpt: dict, normalizer: Normalizer, path: str | Path) -> None:
+    """Refuse data whose statistics differ (the files changed since the run: its data config,
+    actions included, is the run's own, src.prepare.restore_run): resuming changes the model."""
     state = ckpt["state_dict"]
     used = state["normalizer.used"]
     if used.shape != normalizer.used.shape or int(used.sum()) != normalizer.pose_dim:

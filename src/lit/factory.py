@@ -30,10 +30,6 @@ def git_commit() -> str:
         return "unknown"
 
 
-# The Trainer of a trainer config (+ kwargs); a setting Lightning refuses is a ConfigError.
-build_trainer = instantiate
-
-
 def build_parts(cfg: DictConfig) -> None:
     """Build, and drop, the data module, eta schedule and optimisers (on a stand-in parameter),
     and run the network's own argument checks that need no data (`check_arguments`): their
@@ -123,33 +119,3 @@ def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normali
     dm.prepare_data()
     dm.setup("validate")
     return dm
-
-
-def build_for_evaluation(cfg: DictConfig):
-    """(test windows' datamodule, module) of src.eval and src.visualize: the trained model of
-    `cfg.ckpt_path` on its own data config, or the baseline `cfg.model` on `cfg.data`."""
-    if cfg.ckpt_path:
-        module = load_trained(cfg.ckpt_path, cfg)
-        data_cfg = OmegaConf.create(module.run_info["config"]["data"])
-        # Where data lives, and whether its copy lacks files, are facts of this machine.
-        for key in ("data_dir", "archive_dir", "allow_partial"):
-            data_cfg[key] = cfg.paths[key]
-        if cfg.get("data") is not None:  # evaluation settings (protocol, windows) may differ
-            for key in ("eval_protocol", "eval_windows_per_action", "eval_stride", "allow_partial"):
-                data_cfg[key] = cfg.data[key]
-        return build_test_data(cfg, data_cfg, module.normalizer), module
-    if cfg.get("model") is None or cfg.get("data") is None:
-        raise ConfigError(
-            "say what to evaluate: a baseline with model=zero_velocity|running_avg_2|"
-            "running_avg_4 and data=h36m|cmu, or a trained model with ckpt_path=..."
-        )
-    dm = build_test_data(cfg)
-    config = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in ("model", "data")}
-    module = build_module(cfg, dm, run_info={"commit": git_commit(), "config": config})
-    if module.trainable:
-        raise ConfigError(
-            f"model={cfg.model.name} is a trainable network and no ckpt_path was given; the "
-            "numbers of an untrained network mean nothing. Train it with `python -m src.train "
-            f"model={cfg.model.name} ...` and pass ckpt_path=<its checkpoint>."
-        )
-    return dm, module.eval()

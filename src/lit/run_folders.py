@@ -1,8 +1,7 @@
-"""Run folders, settled before anything is written, and the one way a refusal reaches the user.
-Every run gets a new folder (`<time>`, `<time>-1`, ...); one named with `hydra.run.dir=...` is
-refused when it holds a run. A resume continues in its run's own folder, Hydra's record of the
-resume beside the run's (`.hydra/resumed-<time>/`). A refused config creates no folder
-(`PrepareRun`); what is found later (a misspelt action) removes the folder made for it."""
+"""Run folders and the one way a refusal reaches the user. Every run gets a new folder
+(`<time>`, `<time>-1`, ...); one named with `hydra.run.dir=...` is refused when it holds a run.
+A refused config creates no folder (src.prepare.PrepareRun checks it first); what is found later
+(a misspelt action) removes the folder made for it (`nothing_left_if_refused`)."""
 
 from __future__ import annotations
 
@@ -12,19 +11,11 @@ import os
 import re
 import shutil
 import sys
-import time
-from dataclasses import is_dataclass
 from pathlib import Path
 from typing import NoReturn
 
-import hydra
-from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
-from hydra.core.override_parser.overrides_parser import OverridesParser
-from hydra.errors import HydraException
-from hydra.experimental.callback import Callback
-from omegaconf import DictConfig, OmegaConf, open_dict, read_write
+from omegaconf import OmegaConf
 
 from src.config import ConfigError
 from src.data.errors import DataError
@@ -32,7 +23,6 @@ from src.data.files import claim_folder
 from src.lit.checkpoints import CheckpointError
 from src.lit.factory import PROJECT_ROOT
 from src.lit.predictor import NonFiniteLossError
-from src.lit.resume import Resume, prepare_training
 
 # A user's mistake (bad data, config, checkpoint, a diverged run): printed as one line.
 USER_ERRORS = (DataError, ConfigError, CheckpointError, NonFiniteLossError)
@@ -164,129 +154,3 @@ def nothing_left_if_refused(started: str | None = "config.yaml"):
             with contextlib.suppress(OSError):  # only if empty: another run may use a parent
                 made.rmdir()
         raise
-
-
-def _given(config: DictConfig, key: str) -> bool:
-    return any(o.split("=", 1)[0].lstrip("+~") == key for o in config.hydra.overrides.hydra)
-
-
-def _claim(config: DictConfig, key: str) -> Path:
-    try:
-        return claim_run_folder(str(OmegaConf.select(config, key)), exact=_given(config, key))
-    except OSError as err:
-        refuse(
-            f"cannot write the run folder {OmegaConf.select(config, key)}: {err.strerror} "
-            f"({err.filename}). Point paths.log_dir (or {key}) at a writable folder."
-        )
-
-
-class PrepareRun(Callback):
-    """Restore and check a training run's config (prepare_training), then claim the run folder
-    Hydra writes into. A refusal exits here: Hydra turns a callback's exception into a warning."""
-
-    def on_run_start(self, config: DictConfig, config_name: str | None = None, **kwargs) -> None:
-        from lightning.pytorch.utilities import rank_zero_only
-
-        if rank_zero_only.rank != 0:  # DDP's other ranks: Lightning passes rank 0's folder
-            return
-        try:
-            resume = self._prepare_training(config) if config_name == "train" else None
-            if resume is not None and resume.in_place and not _given(config, "hydra.run.dir"):
-                folder = resume.run_dir  # continued where it is: its checkpoints, log, curves
-                stamp = time.strftime("%Y-%m-%d_%H-%M-%S")
-                with read_write(config.hydra):  # the run's own .hydra/ files stay as they are
-                    config.hydra.output_subdir = f"{config.hydra.output_subdir}/resumed-{stamp}"
-            else:
-                folder = _claim(config, "hydra.run.dir")
-        except USER_ERRORS as err:
-            refuse(err)
-        with read_write(config.hydra.run):
-            config.hydra.run.dir = str(folder)
-
-    @staticmethod
-    def _prepare_training(config: DictConfig) -> Resume | None:
-        task = OmegaConf.masked_copy(config, [k for k in config if k != "hydra"])
-        overrides = list(config.hydra.overrides.task)
-        choices = OmegaConf.to_container(config.hydra.runtime.choices)
-        restored, resume = prepare_training(task, overrides, choices)
-        if resume is None:
-            return None
-        # The run's settings become this job's, before its folder is named from them
-        # (run_name, task_name, paths.log_dir); .hydra/ records the run's options.
-        given = {o.split("=", 1)[0].lstrip("+~") for o in overrides}
-        with read_write(config), open_dict(config):
-            for key, value in OmegaConf.to_container(restored, resolve=False).items():
-                node = config._get_node(key)  # every key of `config` but hydra
-                if isinstance(node, DictConfig) and is_dataclass(OmegaConf.get_type(node)):
-                    node.merge_with(value)  # typed by src/config.py: its keys are fixed
-                else:
-                    config[key] = value
-            for group, option in (resume.run_choices or {}).items():
-                if group in config.hydra.runtime.choices and group not in given:
-                    config.hydra.runtime.choices[group] = option
-        return resume
-
-    def on_multirun_start(
-        self, config: DictConfig, config_name: str | None = None, **kwargs
-    ) -> None:
-        """Every job's config is checked before the first starts; the sweep's folder is claimed
-        the same way as a run's; its jobs, numbered, cannot collide."""
-        if config_name == "train":
-            check_sweep(config)
-        if _given(config, "hydra.sweep.dir"):
-            return
-        folder = _claim(config, "hydra.sweep.dir")
-        with read_write(config.hydra):
-            config.hydra.sweep.dir = str(folder)
-            # Each job's config is composed again from these (Hydra's load_sweep_config).
-            config.hydra.overrides.hydra.append(f'hydra.sweep.dir="{folder}"')
-
-
-BASIC_SWEEPER = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
-
-
-def sweep_jobs(config: DictConfig) -> tuple[list[list[str]], bool]:
-    """The override lists of the jobs the sweep `config` will launch, and whether they are all
-    of them: the basic sweeper's, expanded as it expands them; another sweeper (Optuna) draws
-    its values as the study goes, so one list: the command line's fixed values, every trial's."""
-    arguments = list(config.hydra.overrides.task)
-    parser = OverridesParser.create(config_loader=GlobalHydra.instance().config_loader())
-    sweeper = hydra.utils.get_class(config.hydra.sweeper._target_)
-    # By name: Hydra's plugin discovery imports its sweepers' modules again (other classes).
-    if BASIC_SWEEPER in {f"{c.__module__}.{c.__qualname__}" for c in sweeper.__mro__}:
-        params = config.hydra.sweeper.get("params") or {}
-        parsed = parser.parse_overrides([f"{k}={v}" for k, v in params.items()] + arguments)
-        (jobs,) = BasicSweeper.split_arguments(parsed, max_batch_size=None)
-        return jobs, True
-    parsed = parser.parse_overrides(arguments)
-    fixed = [f"{o.get_key_element()}={o.get_value_element_as_str()}" for o in parsed
-             if not o.is_sweep_override()]  # fmt: skip
-    return [fixed], False
-
-
-def check_sweep(config: DictConfig) -> None:
-    """Refuse a training sweep, before its first job, if any job's config would be refused:
-    each is composed as its launcher will compose it and checked as a single run is
-    (prepare_training). Otherwise job 5's bad value stops the sweep hours in, after jobs 0-4."""
-    jobs, expanded = sweep_jobs(config)
-    loader = GlobalHydra.instance().config_loader()
-    for num, overrides in enumerate(jobs):
-        try:
-            job = loader.load_sweep_config(config, list(overrides))
-        except HydraException as err:  # Hydra's refusal of a value (its type: src/config.py)
-            if not expanded:  # Optuna's fixed values composed already (the sweep's config)
-                return
-            text = f"{err} {err.__cause__ or ''}".split("Config search path:")[0].split()
-            words = " ".join(x for x in text if not x.startswith("object_type"))
-            refuse(f"job {num} of the sweep ({' '.join(overrides)}) cannot be composed, so no "
-                   f"job of the sweep was started: {words}")  # fmt: skip
-        task = OmegaConf.masked_copy(job, [k for k in job if k != "hydra"])
-        choices = OmegaConf.to_container(job.hydra.runtime.choices)
-        try:
-            prepare_training(task, list(overrides), choices)
-        except USER_ERRORS as err:
-            which = f"job {num} of the sweep's {len(jobs)}" if expanded else "every trial"
-            refuse(
-                f"{which} ({' '.join(overrides) or 'no overrides'}) would be refused, so no "
-                f"job of the sweep was started: {err}"
-            )
