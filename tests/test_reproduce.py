@@ -164,7 +164,10 @@ def test_two_seeds_run_at_once_with_joblib_and_the_report_aggregates_them(
     frame = pd.read_csv(work / "results_long.csv")
     frame = frame[(frame.metric == "euler") & frame.value.notna() & (frame.horizon == 80)]
     assert set(frame.experiment) == {"li2018_h36m"} and sorted(set(frame.seed)) == [1, 2]
-    assert "li2018_h36m (synthetic, 6 iterations): 2 seeds (1, 2)" in page
+    # One row of two seeds: Provenance lists a run folder per seed.
+    provenance = next(b for b in page.split("\n\n") if "| run folder " in b.split("\n")[0])
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in provenance.splitlines()]
+    assert [r[1] for r in rows[2:] if r[0] == "li2018_h36m"] == ["1", "2"], provenance
     for selection in ("best", "last"):
         averages = frame[frame.checkpoint == selection].groupby("seed").value.mean().tolist()
         mean = sum(averages) / 2
