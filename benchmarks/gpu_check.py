@@ -72,7 +72,7 @@ class Budget:
 def prepare_data(data: list[str], data_dir: Path, work: Path) -> float:
     """Unpack and parse the archives (or write the synthetic data) before any run is timed:
     the first run would pay it, once."""
-    from src.lit.factory import build_datamodule
+    from src.build import build_datamodule
     from src.prepare import compose_config
 
     start = time.perf_counter()

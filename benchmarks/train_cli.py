@@ -103,7 +103,7 @@ def main() -> None:
     ap.add_argument("--override", action="append", default=[], help="extra src.train override")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
-    from src.lit.factory import git_commit  # the label the runs' own provenance uses
+    from src.cli import git_commit  # the label the runs' own provenance uses
 
     speed = measure(
         args.ref,

@@ -10,6 +10,7 @@ import inspect
 import types
 import typing
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Union
 
 import hydra
@@ -22,6 +23,8 @@ from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode
 
 from src.data.base import EVAL_PROTOCOLS
 from src.metrics.euler_error import DIM_RULES
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]  # conf/ is PROJECT_ROOT / "conf"
 
 
 class ConfigError(ValueError):

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
+from src.build import build_test_data
 from src.cli import hydra_entry
-from src.config import check
+from src.config import ConfigError, check
 from src.data.export import window_arrays
 from src.data.files import atomic_write
-from src.lit.factory import ConfigError, build_test_data
 
 
 def export(cfg: DictConfig) -> Path:

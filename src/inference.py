@@ -13,9 +13,9 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from src.build import load_trained
 from src.data.layout import MAX_RADIANS, largest_rotation
 from src.data.normalization import Normalizer
-from src.lit.factory import load_trained
 from src.lit.parts import compiled
 
 

@@ -14,7 +14,7 @@ from matplotlib.backend_bases import FigureCanvasBase
 from omegaconf import DictConfig, OmegaConf
 
 from src.cli import hydra_entry
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 from src.plots import error_vs_horizon
 from src.reporting.published import published_datasets
 from src.reporting.tables import read_results

@@ -24,12 +24,10 @@ from hydra.errors import HydraException
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict, read_write
 
+from src.build import build_parts
+from src.cli import CONF_DIR, USER_ERRORS, claim_run_folder, refuse, register_resolvers
 from src.config import ConfigError, check
 from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
-from src.lit.factory import PROJECT_ROOT, build_parts
-from src.lit.run_folders import USER_ERRORS, claim_run_folder, refuse, register_resolvers
-
-CONF_DIR = PROJECT_ROOT / "conf"
 
 
 def compose_config(

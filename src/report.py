@@ -21,8 +21,8 @@ import pandas as pd
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
-from src.cli import hydra_entry, silence_false_warnings
-from src.lit.factory import ConfigError, git_commit
+from src.cli import git_commit, hydra_entry, silence_false_warnings
+from src.config import ConfigError
 from src.prepare import compose_config
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes

@@ -15,10 +15,11 @@ import torch
 from omegaconf import DictConfig
 from torch import Tensor
 
+from src.build import build_test_data
+from src.config import ConfigError
 from src.data.base import MotionDataModule, window_ids
 from src.data.export import data_sha256
 from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
-from src.lit.factory import ConfigError, build_test_data
 from src.lit.parts import data_facts
 from src.lit.predictor import MotionPredictor
 from src.metrics.euler_error import horizon_frame_indices

@@ -25,14 +25,14 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
-from src.cli import hydra_entry
+from src.build import build_datamodule, build_module
+from src.cli import git_commit, holds_run, hydra_entry
+from src.config import ConfigError
 from src.lit import checkpoints as ck
-from src.lit.factory import ConfigError, build_datamodule, build_module, git_commit
 from src.lit.media_callback import FrameStripLogger
 from src.lit.parts import instantiate
 from src.lit.predictor import NonFiniteLossError
 from src.lit.progress import ProgressLog, iteration_bar
-from src.lit.run_folders import holds_run
 from src.metrics.averages import averages
 from src.prepare import describe, prepare_training
 

@@ -10,9 +10,8 @@ from matplotlib.animation import FFMpegWriter, PillowWriter
 from omegaconf import DictConfig
 
 from src.cli import hydra_entry
-from src.config import check
+from src.config import ConfigError, check
 from src.data.base import MotionDataModule
-from src.lit.factory import ConfigError
 from src.metrics.kinematics import Skeleton
 from src.plots import animate, frame_strip, window_rows
 from src.results import build_for_evaluation

@@ -1,7 +1,7 @@
 """The one place where the tests of the model's wiring, config keys, boundaries and frame paths
 (tests/test_wiring.py, test_config_keys.py, test_boundaries.py, test_frame_paths.py) turn a
 config into the objects a run trains and evaluates with. They use the entry points' public
-functions only; when src.lit's API changes, this file is the one to edit.
+functions only; when src.build's API changes, this file is the one to edit.
 
 What a training iteration does is watched from outside, as tests/test_training_behaviour.py
 does: PyTorch's optimiser step hooks record what each optimiser steps with (its class, its
@@ -20,14 +20,12 @@ import lightning as L
 import torch
 from omegaconf import DictConfig
 
-from src.config import check
-from src.data.errors import DataError  # noqa: F401  (what objects.validate may raise)
-from src.lit.factory import (  # noqa: F401  (ConfigError: what a refused config raises)
-    ConfigError,
-    build_datamodule,
-    build_module,
-    build_parts,
+from src.build import build_datamodule, build_module, build_parts
+from src.config import (
+    ConfigError,  # noqa: F401  (what a refused config raises)
+    check,
 )
+from src.data.errors import DataError  # noqa: F401  (what objects.validate may raise)
 from src.prepare import compose_config
 from src.results import build_for_evaluation
 

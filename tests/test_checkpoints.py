@@ -333,7 +333,7 @@ def test_cuda_random_state_is_saved_and_restored(train_cfg):
     """On a GPU, dropout masks come from the CUDA generator: a resume restores it too."""
     if not torch.cuda.is_available():
         pytest.skip("needs CUDA (the CPU generator's round trip is in tests/test_resume.py)")
-    from src.lit.factory import build_datamodule, build_module
+    from src.build import build_datamodule, build_module
 
     cfg = train_cfg(*TINY[1:])
     dm = build_datamodule(cfg.data)

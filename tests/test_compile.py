@@ -15,7 +15,8 @@ import pytest
 import torch
 import torch._inductor.config as inductor_config
 
-from src.lit.factory import ConfigError, build_datamodule, build_module
+from src.build import build_datamodule, build_module
+from src.config import ConfigError
 from src.models.dropout import Dropout
 from tests.conftest import refused
 
@@ -167,7 +168,7 @@ def test_a_tensor_eta_of_one_gives_the_prediction_exactly(train_cfg):
 
 def test_a_compile_setting_typo_is_refused(train_cfg):
     """Before the data is read (build_parts), by the one function that reads the setting."""
-    from src.lit.factory import build_parts
+    from src.build import build_parts
 
     with pytest.raises(ConfigError) as err:
         build_parts(train_cfg("model=conv_s2s", "compile.enabled=cuda"))

@@ -18,7 +18,7 @@ EXPERIMENTS = sorted(p.stem for p in (CONF / "experiment").glob("*.yaml"))
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_every_experiment_composes_and_instantiates(experiment, tmp_path, synthetic_data_dir):
-    from src.lit.factory import build_module
+    from src.build import build_module
 
     cfg = compose_config(
         "train", [f"experiment={experiment}"], tmp_path / "run", synthetic_data_dir
@@ -29,7 +29,7 @@ def test_every_experiment_composes_and_instantiates(experiment, tmp_path, synthe
     )
     # Instantiate on the synthetic data so the check is about the configs, not the archives.
     synth = compose_config("train", ["data=synthetic"], tmp_path / "s", synthetic_data_dir)
-    from src.lit.factory import build_datamodule
+    from src.build import build_datamodule
 
     data_cfg = OmegaConf.merge(synth.data, {"actions": synth.data.actions})
     dm = build_datamodule(data_cfg)
@@ -77,7 +77,7 @@ def test_misspelt_key_is_rejected(tmp_path):
 def test_out_of_range_values_are_rejected_before_training(
     override, named, tmp_path, synthetic_data_dir
 ):
-    from src.lit.factory import ConfigError
+    from src.config import ConfigError
     from src.prepare import prepare_training
 
     extra = ["sampling.steps=0"] if override == "sampling=linear" else []
@@ -131,8 +131,7 @@ def test_runs_never_share_a_folder(tmp_path):
     ],
 )
 def test_eval_settings_are_validated(override, named, tmp_path):
-    from src.config import check
-    from src.lit.factory import ConfigError
+    from src.config import ConfigError, check
 
     cfg = compose_config("eval", ["model=zero_velocity", "data=h36m", override], tmp_path)
     with pytest.raises(ConfigError) as err:
@@ -169,7 +168,7 @@ def test_values_of_the_wrong_type_are_rejected_before_training(
     (iterations=abc), or be truncated (iterations=1.5 ran as 1). Hydra refuses a top-level
     key's type while composing (src/config.py's schema), the checks the rest."""
     from src.cli import hydra_error
-    from src.lit.factory import ConfigError
+    from src.config import ConfigError
     from src.prepare import prepare_training
 
     key, value = override.split("=")

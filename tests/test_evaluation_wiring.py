@@ -9,7 +9,7 @@ import lightning as L
 import pytest
 import torch
 
-from src.lit.factory import build_datamodule, build_module
+from src.build import build_datamodule, build_module
 from src.metrics.euler_error import EulerAngleError
 from src.prepare import compose_config
 

@@ -15,7 +15,7 @@ import lightning as L
 import pytest
 import torch
 
-from src.lit.factory import build_datamodule, build_module
+from src.build import build_datamodule, build_module
 from src.lit.predictor import MotionPredictor
 from tests import objects
 from tests.objects import TINY_CONV

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 from tests.conftest import CONF, refused, run_module
 
 
@@ -213,7 +213,7 @@ def test_rows_3_4_values_of_the_wrong_type_are_refused_naming_the_type(overrides
 
 
 def test_row_3_long_term_false_builds_the_ablation(train_cfg, synthetic_data_dir):
-    from src.lit.factory import build_datamodule, build_module
+    from src.build import build_datamodule, build_module
     from src.prepare import prepare_training
 
     sizes = {}

@@ -12,10 +12,10 @@ import torch
 from omegaconf import OmegaConf
 
 from src.cli import hydra_entry
+from src.config import ConfigError
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
-from src.lit.factory import ConfigError
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
 from src.prepare import prepare_training
 from tests.conftest import compose_config, refused, run_module

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 from src.report import evaluate_run, main
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs, parse_notes, settings

@@ -349,7 +349,7 @@ def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
 
 
 def test_the_page_goes_to_the_commands_folder_unless_out_is_given(tmp_path, monkeypatch):
-    from src.lit.factory import PROJECT_ROOT
+    from src.config import PROJECT_ROOT
 
     shipped = PROJECT_ROOT / "docs" / "results.md"
     before = shipped.read_bytes()

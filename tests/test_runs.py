@@ -18,11 +18,10 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
-from src.config import check_schedule
+from src.cli import claim_run_folder
+from src.config import ConfigError, check_schedule
 from src.lit.checkpoints import CheckpointError
-from src.lit.factory import ConfigError
 from src.lit.progress import OffTerminalOnly, progress_line
-from src.lit.run_folders import claim_run_folder
 from src.prepare import compose_config, describe, restore_run
 from tests.conftest import ROOT, run_in_one_process, run_interrupted
 from tests.test_resume import TINY

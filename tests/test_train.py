@@ -10,7 +10,7 @@ import pytest
 import torch
 import yaml
 
-from src.lit.factory import build_datamodule, build_module
+from src.build import build_datamodule, build_module
 from tests.conftest import run_module
 from tests.objects import TINY_CONV
 

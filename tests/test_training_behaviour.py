@@ -24,7 +24,7 @@ import lightning as L
 import pytest
 import torch
 
-from src.lit.factory import build_datamodule, build_module
+from src.build import build_datamodule, build_module
 from src.prepare import compose_config
 from tests.objects import TINY_CONV, fit_batches
 

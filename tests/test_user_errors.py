@@ -14,8 +14,8 @@ import lightning as L
 import pytest
 from omegaconf import OmegaConf
 
+from src.config import ConfigError
 from src.data.errors import DataError
-from src.lit.factory import ConfigError
 from tests.conftest import (
     CONF,
     compose_config,

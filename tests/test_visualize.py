@@ -9,7 +9,7 @@ import pytest
 import torch
 from PIL import Image
 
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 from src.metrics.kinematics import Skeleton, forward_kinematics, yz_swap
 from src.plot_errors import plot_errors
 from src.plots import (

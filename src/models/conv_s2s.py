@@ -38,7 +38,7 @@ class ConvSeq2Seq(nn.Module):
 
     @staticmethod
     def check_arguments(C: int = 20, observed_len: int = 50, **_) -> None:
-        """The checks that need no data (src.lit.factory.build_parts runs them first)."""
+        """The checks that need no data (src.build.build_parts runs them first)."""
         if not 1 <= C <= observed_len:
             raise ValueError(
                 f"C={C} must lie in [1, observed_len={observed_len}]: the short-term window "

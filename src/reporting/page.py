@@ -13,7 +13,7 @@ import pandas as pd
 
 import src.reporting.frame as fr
 import src.reporting.headline as hl
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 from src.reporting.claims import claims_section
 from src.reporting.frame import HORIZONS, PROTOCOLS, SELECTION_LABELS, SELECTIONS, Results
 from src.reporting.published import published_frame

@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from src.lit.factory import PROJECT_ROOT, ConfigError
+from src.config import PROJECT_ROOT, ConfigError
 from src.reporting.tables import LONG, read_long, read_results
 
 AVERAGE_TAG = "val_euler/average/"  # the TensorBoard tags of the validations

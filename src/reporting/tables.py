@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from src.lit.factory import ConfigError
+from src.config import ConfigError
 
 AVERAGE = "average"
 RIGHT = ("n", "iterations", "seed", "best at", "wall time")

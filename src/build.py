@@ -1,9 +1,9 @@
-"""Composed Hydra configs, and checkpoints, into datamodules and LightningModules: the entry
-points and MotionForecaster build through these functions alone."""
+"""Composed Hydra configs, and checkpoints, into datamodules and the LightningModule
+(src.lit.predictor.MotionPredictor): the entry points and MotionForecaster build through these
+functions alone, a refusal coming before any run folder or data (`build_parts`)."""
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import hydra
@@ -16,18 +16,6 @@ from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, check_compatible, read_checkpoint
 from src.lit.parts import compiled, data_facts, instantiate, plain
 from src.lit.predictor import MotionPredictor
-
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
-
-
-def git_commit() -> str:
-    """The short commit hash, "-dirty" with uncommitted changes to tracked files."""
-    cmd = ["git", "describe", "--always", "--dirty", "--exclude=*"]  # no tag names
-    try:
-        run = subprocess.run(cmd, cwd=PROJECT_ROOT, capture_output=True, text=True, check=True)
-        return run.stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
 
 
 def build_parts(cfg: DictConfig) -> None:
