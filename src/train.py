@@ -29,10 +29,9 @@ from src.build import build_datamodule, build_module
 from src.cli import git_commit, holds_run, hydra_entry
 from src.config import ConfigError
 from src.lit import checkpoints as ck
-from src.lit.media_callback import FrameStripLogger
+from src.lit.callbacks import FrameStripLogger, ProgressLog, iteration_bar
 from src.lit.parts import instantiate
 from src.lit.predictor import NonFiniteLossError
-from src.lit.progress import ProgressLog, iteration_bar
 from src.metrics.averages import averages
 from src.prepare import describe, prepare_training
 

@@ -20,8 +20,8 @@ from omegaconf import OmegaConf
 
 from src.cli import claim_run_folder
 from src.config import ConfigError, check_schedule
+from src.lit.callbacks import OffTerminalOnly, progress_line
 from src.lit.checkpoints import CheckpointError
-from src.lit.progress import OffTerminalOnly, progress_line
 from src.prepare import compose_config, describe, restore_run
 from tests.conftest import ROOT, run_in_one_process, run_interrupted
 from tests.test_resume import TINY
@@ -513,7 +513,7 @@ def test_progress_line_reads_at_a_glance():
 
 
 def test_progress_goes_to_the_console_only_off_a_terminal(monkeypatch):
-    record = logging.LogRecord("src.lit.progress", logging.INFO, "", 0, "iteration 1/2", (), None)
+    record = logging.LogRecord("src.lit.callbacks", logging.INFO, "", 0, "iteration 1/2", (), None)
     other = logging.LogRecord("src.train", logging.INFO, "", 0, "run folder", (), None)
 
     class Stdout:
@@ -537,9 +537,9 @@ def test_progress_line_in_train_log_and_redirected_stdout(tmp_path, synthetic_da
     assert proc.returncode == 0, proc.stderr[-3000:]
     (run,) = _runs(tmp_path)
     log_lines = [
-        x for x in (run / "train.log").read_text().splitlines() if "[src.lit.progress]" in x
+        x for x in (run / "train.log").read_text().splitlines() if "[src.lit.callbacks]" in x
     ]
-    out_lines = [x for x in proc.stdout.splitlines() if "[src.lit.progress]" in x]
+    out_lines = [x for x in proc.stdout.splitlines() if "[src.lit.callbacks]" in x]
     assert len(log_lines) == len(out_lines) == 4
     assert "iteration 4/4 (100.0%)" in log_lines[-1]
     for part in ("it/s", "ETA", "loss_recon", "loss_g"):

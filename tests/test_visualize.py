@@ -253,7 +253,7 @@ def test_media_callback_logs_frame_strip_to_tensorboard(train_cfg, tmp_path):
 
 
 def test_media_callback_off_with_media_every_zero(train_cfg, tmp_path):
-    from src.lit.media_callback import FrameStripLogger
+    from src.lit.callbacks import FrameStripLogger
 
     assert FrameStripLogger.from_config(train_cfg("media_every=0")) == []
     (cb,) = FrameStripLogger.from_config(train_cfg("media_every=3"))
