@@ -1,6 +1,8 @@
 """Composed Hydra configs, and checkpoints, into datamodules and the LightningModule
 (src.lit.predictor.MotionPredictor): the entry points and MotionForecaster build through these
-functions alone, a refusal coming before any run folder or data (`build_parts`)."""
+functions alone, a refusal coming before any run folder or data (`build_parts`); and the
+refusals of a checkpoint that does not fit: another model or data, weights only for a resume,
+other data statistics."""
 
 from __future__ import annotations
 
@@ -11,10 +13,10 @@ import torch
 from hydra.errors import InstantiationException
 from omegaconf import DictConfig, OmegaConf
 
-from src.config import ConfigError
+from src.config import ConfigError, instantiate
 from src.data.normalization import Normalizer
-from src.lit.checkpoints import CheckpointError, check_compatible, read_checkpoint
-from src.lit.parts import compiled, data_facts, instantiate, plain
+from src.lit.checkpoints import LAST, CheckpointError, read_checkpoint
+from src.lit.parts import compiled, data_facts, plain
 from src.lit.predictor import MotionPredictor
 
 
@@ -107,3 +109,66 @@ def build_test_data(cfg: DictConfig, data_cfg: DictConfig | None = None, normali
     dm.prepare_data()
     dm.setup("validate")
     return dm
+
+
+def require_resumable(ckpt: dict, path: str | Path) -> None:
+    if not {"optimizer_states", "loops"} <= ckpt.keys():
+        raise CheckpointError(
+            f"{path} holds weights only (a lean best checkpoint), not the optimiser and loop "
+            f"state a resume needs; resume from the run's {LAST} instead."
+        )
+
+
+def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
+    """Refuse a checkpoint whose model or data differ from what the config asks for."""
+    saved, problems = ckpt["motion"]["config"], []
+    model, data = cfg.get("model"), cfg.get("data")
+    if model is not None and model.name != saved["model"]["name"]:
+        problems.append(
+            f"architecture: checkpoint is {saved['model']['name']}, config asks "
+            f"for model={model.name}"
+        )
+    if data is not None and data.name != saved["data"]["name"]:
+        problems.append(
+            f"dataset: checkpoint was trained on {saved['data']['name']}, config "
+            f"asks for data={data.name}"
+        )
+    if model is not None and not problems:
+        want, have = OmegaConf.to_container(model.net, resolve=True), saved["model"]["net"]
+        diff = [
+            f"{k}={have[k]} in checkpoint vs {v}"
+            for k, v in want.items()
+            if k in have and k != "padding" and k[0] != "_" and v != have[k]
+        ]
+        if diff:
+            problems.append("architecture settings: " + ", ".join(diff))
+    if problems:
+        raise CheckpointError(
+            f"checkpoint {path} does not match the config: "
+            + "; ".join(problems)
+            + ". Drop the model=/data= overrides to use the checkpoint's own, or pick the "
+            "checkpoint of the run you mean."
+        )
+
+
+def check_normalizer(ckpt: dict, normalizer: Normalizer, path: str | Path) -> None:
+    """Refuse data whose statistics differ (the files changed since the run: its data config,
+    actions included, is the run's own, src.prepare.restore_run): resuming changes the model."""
+    state = ckpt["state_dict"]
+    used = state["normalizer.used"]
+    if used.shape != normalizer.used.shape or int(used.sum()) != normalizer.pose_dim:
+        raise CheckpointError(
+            f"pose dimension: checkpoint {path} uses {int(used.sum())} of {used.numel()} "
+            f"columns, the data gives {normalizer.pose_dim} of {normalizer.num_features}. "
+            "It was trained on another dataset or action set."
+        )
+    if not (
+        torch.equal(used, normalizer.used.cpu())
+        and torch.allclose(state["normalizer.mean"], normalizer.mean.cpu(), atol=1e-5)
+        and torch.allclose(state["normalizer.std"], normalizer.std.cpu(), atol=1e-5)
+    ):
+        raise CheckpointError(
+            f"normalisation statistics: checkpoint {path} was trained with different "
+            "statistics (different training files or actions). Use the same data config "
+            "(data.actions, subjects, allow_partial) as the run that wrote it."
+        )

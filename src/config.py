@@ -1,7 +1,8 @@
 """The entry points' top-level keys, declared once: dataclasses in Hydra's ConfigStore, the
 schema of conf/<entry>.yaml, so Hydra refuses an unknown or wrongly typed key while composing.
 A `_target_` node is typed by its constructor's signature (hydra-zen), which checks its ranges;
-`check` adds the ranges of the keys no constructor reads and the invariants across keys."""
+`check` adds the ranges of the keys no constructor reads and the invariants across keys;
+`instantiate` builds a node with a constructor's refusal as one line."""
 
 import dataclasses
 import difflib
@@ -16,12 +17,15 @@ from typing import Any, Union
 import hydra
 import torch
 from hydra.core.config_store import ConfigStore
+from hydra.errors import InstantiationException
 from hydra_zen import BuildsFn
+from lightning.fabric.utilities.exceptions import MisconfigurationException
 from omegaconf import MISSING, DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, ValidationError
 from omegaconf.nodes import AnyNode, BooleanNode, FloatNode, IntegerNode
 
 from src.data.base import EVAL_PROTOCOLS
+from src.data.errors import DataError
 from src.metrics.euler_error import DIM_RULES
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]  # conf/ is PROJECT_ROOT / "conf"
@@ -182,6 +186,19 @@ def constructor_schema(target: str, partial: bool = False) -> type:
     return _Builds.builds(
         cls, populate_full_signature=True, zen_partial=partial, builds_bases=bases
     )
+
+
+def instantiate(node, **kwargs):
+    """hydra.utils.instantiate; a constructor's refusal is one line, not Hydra's traceback."""
+    try:
+        return hydra.utils.instantiate(node, **kwargs)
+    except InstantiationException as err:
+        cause = err.__cause__
+        if isinstance(cause, (DataError, ConfigError)):
+            raise cause from None
+        if isinstance(cause, (ValueError, MisconfigurationException)):
+            raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
+        raise
 
 
 def check_types(cfg: DictConfig, entry: str) -> None:

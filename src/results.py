@@ -16,9 +16,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from src.build import build_module, build_test_data, load_trained
 from src.cli import git_commit, training_run_name
-from src.config import ConfigError, check
+from src.config import ConfigError, check, instantiate
 from src.data.files import atomic_write
-from src.lit.parts import instantiate
 from src.metrics.averages import averages
 from src.metrics.euler_error import horizon_frame_indices
 from src.reporting.published import ReportingError, published_for

@@ -25,12 +25,11 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities import rank_zero_only
 from omegaconf import DictConfig, OmegaConf
 
-from src.build import build_datamodule, build_module
+from src.build import build_datamodule, build_module, check_normalizer, require_resumable
 from src.cli import git_commit, holds_run, hydra_entry
-from src.config import ConfigError
+from src.config import ConfigError, instantiate
 from src.lit import checkpoints as ck
 from src.lit.callbacks import FrameStripLogger, ProgressLog, iteration_bar
-from src.lit.parts import instantiate
 from src.lit.predictor import NonFiniteLossError
 from src.metrics.averages import averages
 from src.prepare import describe, prepare_training
@@ -79,9 +78,9 @@ def train(cfg: DictConfig) -> float:
     ckpt = done = None
     if cfg.ckpt_path:
         ckpt = ck.read_checkpoint(cfg.ckpt_path)
-        ck.require_resumable(ckpt, cfg.ckpt_path)
+        require_resumable(ckpt, cfg.ckpt_path)
         # Model and data are the run's own (restored above): only the data files may differ.
-        ck.check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path)
+        check_normalizer(ckpt, dm.normalizer, cfg.ckpt_path)
         done = int(ckpt["global_step"])
         if done >= cfg.iterations:
             raise ConfigError(

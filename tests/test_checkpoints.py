@@ -10,13 +10,13 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.build import require_resumable
 from src.inference import MotionForecaster
 from src.lit.checkpoints import (
     LAST,
     CheckpointError,
     LastCheckpoint,
     read_checkpoint,
-    require_resumable,
 )
 from src.lit.predictor import MotionPredictor
 from src.prepare import compose_config

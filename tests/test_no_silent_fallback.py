@@ -274,7 +274,7 @@ def test_row_5_cli_trainer_gpu_without_a_gpu_is_one_line(tmp_path, synthetic_dat
 
 
 def test_row_5_a_trainer_setting_lightning_refuses_is_a_config_error(train_cfg):
-    from src.lit.parts import instantiate
+    from src.config import instantiate
 
     with pytest.raises(ConfigError, match=r"Trainer: `Trainer\(devices=0\)` value is not a valid"):
         instantiate(train_cfg("trainer.devices=0").trainer)

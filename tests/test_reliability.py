@@ -11,11 +11,12 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from src.build import check_normalizer
 from src.cli import hydra_entry
 from src.config import ConfigError
 from src.data.errors import DataError
 from src.data.normalization import Normalizer
-from src.lit.checkpoints import CheckpointError, check_normalizer, read_checkpoint
+from src.lit.checkpoints import CheckpointError, read_checkpoint
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
 from src.prepare import prepare_training
 from tests.conftest import compose_config, refused, run_module

@@ -14,10 +14,8 @@ import hydra
 import lightning as L
 import torch
 from lightning.pytorch.callbacks import Checkpoint, ModelCheckpoint
-from omegaconf import DictConfig, OmegaConf
 
 from src.data.files import atomic_write
-from src.data.normalization import Normalizer
 
 log = logging.getLogger(__name__)
 
@@ -37,12 +35,6 @@ class TrainingInterrupted(RuntimeError):
             f"{signal.Signals(signum).name} received: stopped after iteration {iteration} and "
             f"wrote {path}. Resume with: python -m src.train ckpt_path={path}"
         )
-
-
-def validates_now(trainer: L.Trainer) -> bool:
-    """Whether the Trainer validates after the iteration just trained (every val_check_interval)."""
-    every = trainer.val_check_batch
-    return trainer.enable_validation and isinstance(every, int) and trainer.global_step % every == 0
 
 
 class LastCheckpoint(Checkpoint):
@@ -91,34 +83,31 @@ class LastCheckpoint(Checkpoint):
         trainer.strategy.barrier("last_checkpoint")
         self._saved_at = trainer.global_step
 
-    def _stop_signal(self, trainer: L.Trainer, pl_module: L.LightningModule) -> int | None:
-        """The same on every rank (one all-reduce per iteration): a signal may reach one rank
-        only, which would wait alone at the save's barrier."""
-        if trainer.world_size == 1:
-            return self._signal
-        signum = torch.tensor(self._signal or 0, device=pl_module.device)
-        torch.distributed.all_reduce(signum, op=torch.distributed.ReduceOp.MAX)
-        return int(signum) or None
-
-    def _save_and_stop(self, trainer: L.Trainer, pl_module: L.LightningModule, signum: int):
-        self.save(trainer, pl_module)
-        raise TrainingInterrupted(signum, self.path, trainer.global_step)
+    def _stop_if_signalled(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        """Save and stop on a signal, the same on every rank (one all-reduce per iteration): a
+        signal may reach one rank only, which would wait alone at the save's barrier."""
+        signum = self._signal
+        if trainer.world_size > 1:
+            signum = torch.tensor(signum or 0, device=pl_module.device)
+            torch.distributed.all_reduce(signum, op=torch.distributed.ReduceOp.MAX)
+            signum = int(signum) or None
+        if signum is not None:
+            self.save(trainer, pl_module)
+            raise TrainingInterrupted(signum, self.path, trainer.global_step)
 
     def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
-        if validates_now(trainer):  # saved after the validation
+        every = trainer.val_check_batch  # validating after this iteration: saved after that
+        validates = isinstance(every, int) and trainer.global_step % every == 0
+        if trainer.enable_validation and validates:
             return
-        signum = self._stop_signal(trainer, pl_module)
-        if signum is not None:
-            self._save_and_stop(trainer, pl_module, signum)
+        self._stop_if_signalled(trainer, pl_module)
         if self.every and trainer.global_step % self.every == 0:
             self.save(trainer, pl_module)
 
     def on_validation_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or trainer.fast_dev_run or trainer.state.fn != "fit":
             return
-        signum = self._stop_signal(trainer, pl_module)
-        if signum is not None:
-            self._save_and_stop(trainer, pl_module, signum)
+        self._stop_if_signalled(trainer, pl_module)
         self.save(trainer, pl_module)
 
     def on_train_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
@@ -255,66 +244,3 @@ def _unreadable(path: Path, err: Exception) -> str:
             "loaded (weights_only: no code from a file runs); this project's checkpoints hold none"
         )
     return f"the file is damaged ({text.split('. ')[0].rstrip('.')})"  # a whole sentence
-
-
-def require_resumable(ckpt: dict, path: str | Path) -> None:
-    if not {"optimizer_states", "loops"} <= ckpt.keys():
-        raise CheckpointError(
-            f"{path} holds weights only (a lean best checkpoint), not the optimiser and loop "
-            f"state a resume needs; resume from the run's {LAST} instead."
-        )
-
-
-def check_compatible(ckpt: dict, cfg: DictConfig, path: str | Path) -> None:
-    """Refuse a checkpoint whose model or data differ from what the config asks for."""
-    saved, problems = ckpt["motion"]["config"], []
-    model, data = cfg.get("model"), cfg.get("data")
-    if model is not None and model.name != saved["model"]["name"]:
-        problems.append(
-            f"architecture: checkpoint is {saved['model']['name']}, config asks "
-            f"for model={model.name}"
-        )
-    if data is not None and data.name != saved["data"]["name"]:
-        problems.append(
-            f"dataset: checkpoint was trained on {saved['data']['name']}, config "
-            f"asks for data={data.name}"
-        )
-    if model is not None and not problems:
-        want, have = OmegaConf.to_container(model.net, resolve=True), saved["model"]["net"]
-        diff = [
-            f"{k}={have[k]} in checkpoint vs {v}"
-            for k, v in want.items()
-            if k in have and k != "padding" and k[0] != "_" and v != have[k]
-        ]
-        if diff:
-            problems.append("architecture settings: " + ", ".join(diff))
-    if problems:
-        raise CheckpointError(
-            f"checkpoint {path} does not match the config: "
-            + "; ".join(problems)
-            + ". Drop the model=/data= overrides to use the checkpoint's own, or pick the "
-            "checkpoint of the run you mean."
-        )
-
-
-def check_normalizer(ckpt: dict, normalizer: Normalizer, path: str | Path) -> None:
-    """Refuse data whose statistics differ (the files changed since the run: its data config,
-    actions included, is the run's own, src.prepare.restore_run): resuming changes the model."""
-    state = ckpt["state_dict"]
-    used = state["normalizer.used"]
-    if used.shape != normalizer.used.shape or int(used.sum()) != normalizer.pose_dim:
-        raise CheckpointError(
-            f"pose dimension: checkpoint {path} uses {int(used.sum())} of {used.numel()} "
-            f"columns, the data gives {normalizer.pose_dim} of {normalizer.num_features}. "
-            "It was trained on another dataset or action set."
-        )
-    if not (
-        torch.equal(used, normalizer.used.cpu())
-        and torch.allclose(state["normalizer.mean"], normalizer.mean.cpu(), atol=1e-5)
-        and torch.allclose(state["normalizer.std"], normalizer.std.cpu(), atol=1e-5)
-    ):
-        raise CheckpointError(
-            f"normalisation statistics: checkpoint {path} was trained with different "
-            "statistics (different training files or actions). Use the same data config "
-            "(data.actions, subjects, allow_partial) as the run that wrote it."
-        )

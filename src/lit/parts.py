@@ -1,6 +1,6 @@
-"""What a MotionPredictor is built from: its config sections (plain containers, the
-checkpoint's hyper-parameters) and the facts of its data (`data_facts`), into networks,
-optimiser factories and the eta schedule; a constructor's refusal is one line."""
+"""What a MotionPredictor is built from: its config sections as plain containers (the
+checkpoint's hyper-parameters), the facts of its data (`data_facts`), its networks (`network`)
+and the compile setting (`compiled`)."""
 
 from __future__ import annotations
 
@@ -8,27 +8,10 @@ import inspect
 from typing import Any
 
 import hydra
-import torch
-from hydra.errors import InstantiationException
-from lightning.fabric.utilities.exceptions import MisconfigurationException
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
-from src.config import ConfigError
-from src.data.errors import DataError
+from src.config import ConfigError, instantiate
 from src.data.normalization import Normalizer
-
-
-def instantiate(node, **kwargs):
-    """hydra.utils.instantiate; a constructor's refusal is one line, not Hydra's traceback."""
-    try:
-        return hydra.utils.instantiate(node, **kwargs)
-    except InstantiationException as err:
-        cause = err.__cause__
-        if isinstance(cause, (DataError, ConfigError)):
-            raise cause from None
-        if isinstance(cause, (ValueError, MisconfigurationException)):
-            raise ConfigError(f"{node.get('_target_', '?')}: {cause}") from None
-        raise
 
 
 def compiled(setting: Any, cuda: bool, name: str = "compile.enabled") -> bool:
@@ -59,13 +42,6 @@ def data_facts(dm) -> dict[str, Any]:
         "used": dm.normalizer.dim_used.tolist(),
         "num_features": dm.normalizer.num_features,
     }
-
-
-def normalizer_of(facts: dict[str, Any]) -> Normalizer:
-    """A Normalizer of the facts' shape and used columns; its statistics come with the weights."""
-    used = torch.zeros(facts["num_features"], dtype=torch.bool)
-    used[facts["used"]] = True
-    return Normalizer(torch.zeros(used.numel()), torch.ones(used.numel()), used)
 
 
 def network(node, facts: dict[str, Any], normalizer: Normalizer, **extra):

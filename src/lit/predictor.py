@@ -18,9 +18,10 @@ import torch.nn.functional as F
 from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor, nn
 
+from src.config import instantiate
 from src.data.normalization import Normalizer
 from src.lit.checkpoints import upgrade
-from src.lit.parts import compiled, instantiate, network, normalizer_of, plain
+from src.lit.parts import compiled, network, plain
 from src.metrics.averages import averages
 from src.metrics.euler_error import EulerAngleError, horizon_frame_indices
 from src.metrics.kinematics import Skeleton, moving_joints
@@ -76,7 +77,11 @@ class MotionPredictor(L.LightningModule):
              "metrics": metrics, "compile": compile}, logger=False,
         )  # fmt: skip
         self.automatic_optimization = False
-        self.normalizer = normalizer = normalizer_of(data) if normalizer is None else normalizer
+        if normalizer is None:  # of the facts' shape and columns; statistics from the weights
+            used = torch.zeros(data["num_features"], dtype=torch.bool)
+            used[data["used"]] = True
+            normalizer = Normalizer(torch.zeros(used.numel()), torch.ones(used.numel()), used)
+        self.normalizer = normalizer
         self.net = net = network(model["net"], data, normalizer)
         adv = adversarial if adversarial and adversarial.get("enabled") and self.trainable else {}
         self.discriminator = (
@@ -97,14 +102,10 @@ class MotionPredictor(L.LightningModule):
         self.dataset, self.actions = data["dataset"], data["actions"]
         self.frame_ms, self.future_len = data["frame_ms"], data["future_len"]
         # Actions without training files in the data copy trained on: not in average_trained.
-        untrained = set(data.get("untrained_actions", []))
-        if unknown := untrained - set(self.actions):
-            raise ValueError(f"untrained_actions {sorted(unknown)} are not among {self.actions}")
-        self.untrained_actions = [a for a in self.actions if a in untrained]
+        self.untrained_actions = [a for a in self.actions if a in data.get("untrained_actions", [])]
         self.run_info: dict[str, Any] = {}  # commit, config, missing files: in checkpoints
-        self.compile_step = compile.get("enabled", False)  # torch.compile the two objectives
+        self.compile_step = compile.get("enabled", False)  # torch.compile the objectives?
         self.compile_mode = compile.get("mode", "reduce-overhead")
-        compiled(self.compile_step, cuda=False)  # a misspelt setting: refused here
         self._compiled: tuple | None = None  # see _objectives
         self._eta_tensor: Tensor | None = None
         self._recent_losses: deque[dict[str, Tensor]] = deque(maxlen=5)
@@ -248,9 +249,8 @@ class MotionPredictor(L.LightningModule):
             self.untoggle_optimizer(opt_d)
             # Clones: a CUDA graph's outputs are overwritten by its next replay.
             logs |= {"train/loss_d": loss_d.clone(), "train/d_real": d_real.clone()}
-
-        if self.adversarial:
             self.toggle_optimizer(opt_g)
+
         loss_backprop, loss_recon, loss_adv = g_objective(observed, future, action, eta_in)
         loss_recon = loss_recon.clone()
         loss_l2 = l2_penalty(self.net) if self.lambda_2 > 0 else loss_recon.new_zeros(())
