@@ -1,5 +1,7 @@
 """Checkpoint files: `last.ckpt`, the resume point (LastCheckpoint), and the lean
-`best-iterNNNNNN.ckpt` for evaluation (BestCheckpoint); reading and checking them."""
+`best-iterNNNNNN.ckpt` for evaluation (BestCheckpoint); reading one with clear errors
+(`read_checkpoint`), an older one converted (`upgrade`). Whether one fits a config or the data:
+src/build.py."""
 
 from __future__ import annotations
 
