@@ -16,8 +16,9 @@ from omegaconf import DictConfig
 from torch import Tensor
 
 from src.data.base import MotionDataModule, window_ids
-from src.data.export import data_sha256
-from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
+from src.data.layout import SPECS
+from src.export_windows import window_arrays
+from src.inference import MAX_RADIANS, largest_rotation
 from src.lit.factory import ConfigError, build_test_data
 from src.lit.parts import data_facts
 from src.lit.predictor import MotionPredictor
@@ -32,28 +33,19 @@ class PredictionsError(ConfigError):
     """A predictions file that cannot be scored."""
 
 
-def transposed_axes(shape: tuple[int, ...], expected: tuple) -> tuple[int, ...] | None:
-    """The axes for np.transpose, other than (0, 1, 2), that turn `shape` into `expected`,
-    (windows, frames, columns), or None. Sizes not known yet (read_predictions reads no data)
-    are None: then any number of frames, a dataset's number of columns."""
+def refuse_transposed(path: Path, shape: tuple[int, ...], expected: tuple) -> None:
+    """Name a transposed prediction as such: its other checks would blame window_id or say it
+    has `frames` columns. `expected`: (windows, frames, columns), None where not known yet (then
+    any number of frames, a dataset's number of columns)."""
     windows, frames, columns = expected
     for axes in itertools.permutations(range(3)):
         n, t, f = (shape[a] for a in axes)
         known = f == columns if columns else f in {s.n_columns for s in SPECS.values()}
         if axes != (0, 1, 2) and n == windows and frames in (None, t) and known:
-            return axes
-    return None
-
-
-def refuse_transposed(path: Path, shape: tuple[int, ...], expected: tuple) -> None:
-    """Name a transposed prediction as such: its other checks would blame window_id or say it
-    has `frames` columns."""
-    if (axes := transposed_axes(shape, expected)) is not None:
-        want = tuple(shape[a] for a in axes)
-        raise PredictionsError(
-            f"{path}: prediction has shape {shape}, (windows, frames, columns) = {want} was "
-            f"expected: it looks transposed; save prediction.transpose{axes}"
-        )
+            raise PredictionsError(
+                f"{path}: prediction has shape {shape}, (windows, frames, columns) = {(n, t, f)} "
+                f"was expected: it looks transposed; save prediction.transpose{axes}"
+            )
 
 
 @dataclass
@@ -192,7 +184,8 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
                 f"{path}: {len(lacking)} of the {len(names)} {action} windows have no prediction "
                 f"(e.g. {lacking[0]!r}); predict all of them, or none to leave {action} out"
             )
-    if "data_sha256" in preds.meta and preds.meta["data_sha256"] != data_sha256(dm):
+    sha = preds.meta.get("data_sha256")
+    if sha and sha != str(window_arrays(dm, dataset)["data_sha256"]):
         raise PredictionsError(
             f"{path}: its data_sha256 is not that of the windows here: exported from other data "
             f"(other archives or data.* settings); predict the windows of {export} run here"
