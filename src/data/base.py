@@ -354,7 +354,6 @@ class MotionDataModule(L.LightningDataModule):
         return self._loader(self._train_dataset, batch_sampler=sampler, collate_fn=collate)
 
     def test_dataloader(self) -> DataLoader:
-        """The test windows (``eval_windows``)."""
         return self._loader(self._eval_dataset, batch_size=self.eval_batch_size, shuffle=False)
 
     def val_dataloader(self) -> DataLoader:

@@ -113,5 +113,4 @@ def cmu_files(actions: Sequence[str], split: str) -> list[FileEntry]:
 
 
 def missing_files(data_dir: str | Path, entries: Iterable[FileEntry]) -> list[str]:
-    """Relative paths of the expected files that do not exist under ``data_dir``."""
     return [e.relpath for e in entries if not (Path(data_dir) / e.relpath).is_file()]

@@ -107,5 +107,3 @@ class Normalizer(nn.Module):
         full = z.new_zeros(*z.shape[:-1], self.num_features)
         full = full.index_copy(-1, self.dim_used.to(z.device), z)
         return full * self.std.to(z) + self.mean.to(z)
-
-    forward = normalize
