@@ -12,9 +12,8 @@ import pytest
 
 from src.data.synthetic import synthetic_motion
 from src.data.windows import srnn_h36m_starts
-from src.export_windows import windows_sha256
 from src.lit.factory import ConfigError
-from src.scoring import PredictionsError
+from src.scoring import PredictionsError, windows_sha256
 from tests.conftest import compose_config, run_module
 
 
