@@ -1,5 +1,5 @@
 """Write the protocol's test windows src.eval scores, as raw exp-map frames, to a .npz for a
-model outside this project (the arrays: src.data.base.window_arrays; scoring them: src/scoring.py).
+model outside this project (the arrays, and scoring them: src/scoring.py).
 
     python -m src.export_windows data=h36m protocol=srnn out=windows.npz
     python -m src.export_windows data=cmu protocol=random data.allow_partial=true out=cmu.npz
@@ -13,8 +13,8 @@ from omegaconf import DictConfig
 from src.build import build_test_data
 from src.cli import hydra_entry
 from src.config import ConfigError, check
-from src.data.export import window_arrays
 from src.data.files import atomic_write
+from src.scoring import window_arrays
 
 
 def export(cfg: DictConfig) -> Path:

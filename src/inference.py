@@ -14,9 +14,23 @@ import torch
 from torch import Tensor, nn
 
 from src.build import load_trained
-from src.data.layout import MAX_RADIANS, largest_rotation
 from src.data.normalization import Normalizer
 from src.lit.parts import compiled
+
+# A frame is 3 root-position columns (any size) then one exp-map triple per joint, whose norm is
+# the joint's rotation angle. In radians real motion stays within pi (every frame of the H3.6M
+# and CMU archives: at most 3.1416); in degrees every one of their frames has a joint beyond 21.
+# Beyond 2 pi (the same rotation as a smaller one) is degrees, not motion.
+MAX_RADIANS = 2 * np.pi
+
+
+def largest_rotation(frames: np.ndarray, used) -> tuple[float, tuple[int, ...]]:
+    """The largest joint rotation angle of raw frames (..., F) and where: (..., joint). `used`
+    (F bools, a Normalizer's): only joints with a used column count, as only they are scored."""
+    angles = np.linalg.norm(frames[..., 3:].reshape(*frames.shape[:-1], -1, 3), axis=-1)
+    angles = np.where(np.asarray(used)[3:].reshape(-1, 3).any(-1), angles, 0.0)
+    where = np.unravel_index(np.argmax(angles), angles.shape)
+    return float(angles[where]), tuple(int(i) for i in where)
 
 
 class InferenceInputError(ValueError):

@@ -274,14 +274,11 @@ def evaluate(cfg: DictConfig) -> dict:
     (out_dir / "results.csv").write_text(tables_csv(tables))
     ckpt = Path(cfg.ckpt_path) if cfg.ckpt_path else None
     keys = {"run": str(ckpt.parent.parent) if ckpt else run_name, "experiment": run_name}
+    keys |= {"dataset": dataset, "protocol": dm.eval_protocol, "checkpoint": "-"}
     # A checkpoint's seed is its data config's (the run's `seed`), its iterations the Trainer's.
     if ckpt:
-        keys |= {
-            "seed": module.run_info["config"]["data"].get("seed"),
-            "iterations": module.iterations,
-        }
-    keys |= {"dataset": dataset}
-    keys |= {"protocol": dm.eval_protocol, "checkpoint": ckpt.name if ckpt else "-"}
+        keys |= {"seed": module.run_info["config"]["data"].get("seed")}
+        keys |= {"iterations": module.iterations, "checkpoint": ckpt.name}
     long_rows(tables, **keys).to_csv(out_dir / "results_long.csv", index=False)
     result = {"provenance": provenance, "tables": tables}
     # Last and whole or not at all: its presence marks the folder complete (src/eval.py's

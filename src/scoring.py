@@ -1,12 +1,15 @@
-"""`src.eval predictions=<file>`: predictions by any code of the windows `src.export_windows`
-wrote (format: README, "Scoring a model from another code base"), checked, then standing in for
+"""The test windows as arrays for models outside the project (`window_arrays`, which
+`src.export_windows` writes), and `src.eval predictions=<file>`: their predictions by any code
+(format: README, "Scoring a model from another code base"), checked, then standing in for
 the network in src.eval's own test loop (FilePredictor). An action is predicted fully or not at
 all (then reported absent)."""
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,8 +21,8 @@ from torch import Tensor
 from src.build import build_test_data
 from src.config import ConfigError
 from src.data.base import MotionDataModule, window_ids
-from src.data.export import data_sha256
-from src.data.layout import MAX_RADIANS, SPECS, largest_rotation
+from src.data.layout import SPECS
+from src.inference import MAX_RADIANS, largest_rotation
 from src.lit.parts import data_facts
 from src.lit.predictor import MotionPredictor
 from src.metrics.euler_error import horizon_frame_indices
@@ -29,32 +32,54 @@ OPTIONAL = ("model", "dataset", "protocol", "data_sha256")
 SAVE = "np.savez(path, prediction=<(N, T, F) raw exp-map>, window_id=<windows.npz's window_id>)"
 
 
+def windows_sha256(ids: Iterable[str], frames: Iterable[np.ndarray]) -> str:
+    """SHA-256 over each window's id and its observed + future frames (float32, C order), in
+    the protocol's order: equal for equal windows, whoever computes it from whatever copy."""
+    digest = hashlib.sha256()
+    for name, window in zip(ids, frames, strict=True):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(window, dtype=np.float32).tobytes())
+    return digest.hexdigest()
+
+
+def window_arrays(dm: MotionDataModule, dataset: str) -> dict[str, np.ndarray]:
+    """A set-up datamodule's test windows as `src.export_windows` writes them, in order:
+    - ``observed`` (N, observed_len, F), ``future`` (N, future_len, F): raw exp-map frames,
+      float32, downsampled as everywhere (§1.3); F = 99 on H3.6M, 117 on CMU;
+    - ``action``, ``window_id`` (`window_ids`): (N,) strings; 0-d metadata: ``dataset`` (the data
+      config's name: ``synthetic`` is not H3.6M), ``protocol``, ``fps`` (25, on CMU too, as the
+      tables' horizons assume, protocol §1.5), ``data_sha256`` (`windows_sha256`)."""
+    frames = np.stack([dm.raw_window(i) for i in range(len(dm.eval_windows))])
+    ids = window_ids(dm.eval_windows)
+    return {
+        "observed": frames[:, : dm.observed_len],
+        "future": frames[:, dm.observed_len :],
+        "action": np.array([w.action for w in dm.eval_windows]),
+        "window_id": np.array(ids),
+        "dataset": np.array(dataset),
+        "protocol": np.array(dm.eval_protocol),
+        "fps": np.array(1000.0 / dm.frame_ms),
+        "data_sha256": np.array(windows_sha256(ids, frames)),
+    }
+
+
 class PredictionsError(ConfigError):
     """A predictions file that cannot be scored."""
 
 
-def transposed_axes(shape: tuple[int, ...], expected: tuple) -> tuple[int, ...] | None:
-    """The axes for np.transpose, other than (0, 1, 2), that turn `shape` into `expected`,
-    (windows, frames, columns), or None. Sizes not known yet (read_predictions reads no data)
-    are None: then any number of frames, a dataset's number of columns."""
+def refuse_transposed(path: Path, shape: tuple[int, ...], expected: tuple) -> None:
+    """Name a transposed prediction as such: its other checks would blame window_id or say it
+    has `frames` columns. `expected`: (windows, frames, columns), None where not known yet (then
+    any number of frames, a dataset's number of columns)."""
     windows, frames, columns = expected
     for axes in itertools.permutations(range(3)):
         n, t, f = (shape[a] for a in axes)
         known = f == columns if columns else f in {s.n_columns for s in SPECS.values()}
         if axes != (0, 1, 2) and n == windows and frames in (None, t) and known:
-            return axes
-    return None
-
-
-def refuse_transposed(path: Path, shape: tuple[int, ...], expected: tuple) -> None:
-    """Name a transposed prediction as such: its other checks would blame window_id or say it
-    has `frames` columns."""
-    if (axes := transposed_axes(shape, expected)) is not None:
-        want = tuple(shape[a] for a in axes)
-        raise PredictionsError(
-            f"{path}: prediction has shape {shape}, (windows, frames, columns) = {want} was "
-            f"expected: it looks transposed; save prediction.transpose{axes}"
-        )
+            raise PredictionsError(
+                f"{path}: prediction has shape {shape}, (windows, frames, columns) = {(n, t, f)} "
+                f"was expected: it looks transposed; save prediction.transpose{axes}"
+            )
 
 
 @dataclass
@@ -193,7 +218,8 @@ def match_windows(preds: Predictions, dm: MotionDataModule, dataset: str) -> dic
                 f"{path}: {len(lacking)} of the {len(names)} {action} windows have no prediction "
                 f"(e.g. {lacking[0]!r}); predict all of them, or none to leave {action} out"
             )
-    if "data_sha256" in preds.meta and preds.meta["data_sha256"] != data_sha256(dm):
+    sha = preds.meta.get("data_sha256")
+    if sha is not None and sha != str(window_arrays(dm, dataset)["data_sha256"]):
         raise PredictionsError(
             f"{path}: its data_sha256 is not that of the windows here: exported from other data "
             f"(other archives or data.* settings); predict the windows of {export} run here"

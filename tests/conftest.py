@@ -10,14 +10,22 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
 from omegaconf import DictConfig
 
 from src.cli import register_resolvers
+from src.data.normalization import Normalizer
 from src.prepare import compose_config  # noqa: F401  (re-exported for the tests)
 
 ROOT = Path(__file__).resolve().parents[1]
 CONF = ROOT / "conf"
 register_resolvers()
+
+
+def identity_normalizer(num_features: int) -> Normalizer:
+    """Identity statistics of the right shape (a state_dict loaded into it replaces them)."""
+    ones = torch.ones(num_features)
+    return Normalizer(torch.zeros(num_features), ones, ones.bool())
 
 
 @pytest.fixture(scope="session")

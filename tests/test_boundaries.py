@@ -23,7 +23,6 @@ from omegaconf import OmegaConf
 
 from src.data.datasets import TrainWindowSampler
 from src.data.errors import DataError
-from src.data.normalization import Normalizer
 from src.data.synthetic import SyntheticDataModule
 from src.data.windows import cmu_test_starts, random_starts, srnn_h36m_starts, strided_starts
 from src.inference import InferenceInputError, MotionForecaster
@@ -31,7 +30,7 @@ from src.lit.eta_schedule import Constant, InverseSigmoid, LinearRamp
 from src.models import ConvSeq2Seq, Discriminator, ZeroVelocity
 from src.visualize import select_window
 from tests import objects
-from tests.conftest import CONF
+from tests.conftest import CONF, identity_normalizer
 
 WINDOW = 75  # 50 observed + 25 future frames
 LOW = {"h36m": 16, "cmu": 0}  # the first valid training start (protocol 1.4, 1.5)
@@ -251,7 +250,7 @@ def test_each_call_range_check_accepts_its_edge_and_refuses_just_beyond(configs)
     for bad in (-1, 3):
         refused(lambda bad=bad: disc(sequences, torch.tensor([0, bad])), match="action ids")
 
-    normalizer = Normalizer.empty(99)
+    normalizer = identity_normalizer(99)
     forecaster = MotionForecaster(ZeroVelocity(99, 1), normalizer, ["walking"])
     frames = np.zeros((100, 99), dtype=np.float32)
     assert forecaster.predict(frames[:50], future_len=1).shape == (1, 99)

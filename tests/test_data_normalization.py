@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from src.data.errors import DataError
 from src.data.normalization import Normalizer, wrap_angles
 from src.metrics.rotations import expmap_to_rotmat
+from tests.conftest import identity_normalizer
 
 
 def _frames(n: int = 200, seed: int = 0) -> np.ndarray:
@@ -103,7 +104,7 @@ def test_unnormalize_is_differentiable():
 
 def test_state_dict_round_trip_through_empty():
     norm = Normalizer.from_sequences([_frames()])
-    empty = Normalizer.empty(6)
+    empty = identity_normalizer(6)
     assert empty.mean.shape == empty.std.shape == empty.used.shape == (6,)
     empty.load_state_dict(norm.state_dict())
     assert empty.pose_dim == 3 and torch.equal(empty.mean, norm.mean)
@@ -112,7 +113,7 @@ def test_state_dict_round_trip_through_empty():
 
 def test_the_wrap_flag_travels_in_the_state_and_a_state_without_it_is_not_wrapped():
     wrapped = Normalizer.from_sequences([_frames()], wrap=True)
-    empty = Normalizer.empty(6)
+    empty = identity_normalizer(6)
     empty.load_state_dict(wrapped.state_dict())
     assert bool(empty.wrap)
     older = {k: v for k, v in wrapped.state_dict().items() if k != "wrap"}  # before the switch

@@ -19,7 +19,7 @@ from src.data.normalization import Normalizer
 from src.lit.checkpoints import CheckpointError, read_checkpoint
 from src.lit.predictor import MotionPredictor, NonFiniteLossError
 from src.prepare import prepare_training
-from tests.conftest import compose_config, refused, run_module
+from tests.conftest import compose_config, identity_normalizer, refused, run_module
 from tests.test_resume import TINY
 
 # H3.6M's own datamodule on the synthetic files (subject 1 trains, S5 tests): unlike the
@@ -232,7 +232,7 @@ def test_other_normalisation_or_pose_dimension_is_refused(trained):
     wider = Normalizer(state["mean"], state["std"] * 1.5, state["used"])
     with pytest.raises(CheckpointError, match="normalisation statistics"):
         check_normalizer(ckpt, wider, "ck")
-    cmu_like = Normalizer.empty(117)
+    cmu_like = identity_normalizer(117)
     with pytest.raises(CheckpointError, match=r"pose dimension: checkpoint ck uses 54 of 99"):
         check_normalizer(ckpt, cmu_like, "ck")
 

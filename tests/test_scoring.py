@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 
 from src.config import ConfigError
-from src.data.export import windows_sha256
 from src.data.synthetic import synthetic_motion
 from src.data.windows import srnn_h36m_starts
-from src.scoring import PredictionsError
+from src.scoring import PredictionsError, windows_sha256
 from tests.conftest import compose_config, run_module
 
 

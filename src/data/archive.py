@@ -92,21 +92,18 @@ def download(url: str, dest: Path) -> Path:
     if dest.is_file() and zipfile.is_zipfile(dest):
         return dest
     log.warning("downloading %s to %s (data.archive is a URL)", url, dest)
+    fix = (
+        f"fix: download it by hand, pass data.archive=<its path> or set {ARCHIVES_ENV}=<its folder>"
+    )
 
     def fetch(part: Path) -> None:
         try:
             with urllib.request.urlopen(url, timeout=60) as response, open(part, "wb") as out:
                 shutil.copyfileobj(response, out, 1 << 20)
         except OSError as exc:  # URLError and HTTPError are OSErrors
-            raise DataError(
-                f"could not download {url}: {exc} (fix: download it by hand and pass "
-                f"data.archive=<local path>, or set {ARCHIVES_ENV}=<its folder>)"
-            ) from None
+            raise DataError(f"could not download {url}: {exc} ({fix})") from None
         if not zipfile.is_zipfile(part):
-            raise DataError(
-                f"{url} did not return a zip archive (an error page?) (fix: download it by hand "
-                "and pass data.archive=<local path>)"
-            )
+            raise DataError(f"{url} did not return a zip archive (an error page?) ({fix})")
 
     return atomic_write(dest, fetch)
 

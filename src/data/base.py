@@ -181,9 +181,7 @@ class MotionDataModule(L.LightningDataModule):
     def _locate(self) -> tuple[list[FileEntry], list[FileEntry], list[FileEntry]]:
         ensure_dataset(self.spec, self.data_dir, self.archive, self.archive_dir)
         train, test = self.expected_files()
-        val = [] if self._eval_only else self.validation_files()
-        if self._eval_only:
-            train = []
+        train, val = ([], []) if self._eval_only else (train, self.validation_files())
         self.missing_files = missing = missing_files(self.data_dir, train + test + val)
         if missing and not self.allow_partial:
             spec = self.spec
@@ -354,7 +352,6 @@ class MotionDataModule(L.LightningDataModule):
         return self._loader(self._train_dataset, batch_sampler=sampler, collate_fn=collate)
 
     def test_dataloader(self) -> DataLoader:
-        """The test windows (``eval_windows``)."""
         return self._loader(self._eval_dataset, batch_size=self.eval_batch_size, shuffle=False)
 
     def val_dataloader(self) -> DataLoader:

@@ -9,8 +9,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from src.data.errors import DataError
 
 # Protocol §1.2, in [M]'s define_actions order (the index is the action label).
@@ -115,22 +113,4 @@ def cmu_files(actions: Sequence[str], split: str) -> list[FileEntry]:
 
 
 def missing_files(data_dir: str | Path, entries: Iterable[FileEntry]) -> list[str]:
-    """Relative paths of the expected files that do not exist under ``data_dir``."""
     return [e.relpath for e in entries if not (Path(data_dir) / e.relpath).is_file()]
-
-
-# A frame is 3 root-position columns (any size) then one exp-map triple per joint, whose norm is
-# the joint's rotation angle. In radians real motion stays within pi (every frame of the H3.6M
-# and CMU archives: at most 3.1416); in degrees every one of their frames has a joint beyond 21.
-# Beyond 2 pi (the same rotation as a smaller one) is degrees, not motion.
-MAX_RADIANS = 2 * np.pi
-
-
-def largest_rotation(frames: np.ndarray, used=None) -> tuple[float, tuple[int, ...]]:
-    """The largest joint rotation angle of raw frames (..., F) and where: (..., joint). `used`
-    (F bools, a Normalizer's): only joints with a used column count, as only they are scored."""
-    angles = np.linalg.norm(frames[..., 3:].reshape(*frames.shape[:-1], -1, 3), axis=-1)
-    if used is not None:
-        angles = np.where(np.asarray(used)[3:].reshape(-1, 3).any(-1), angles, 0.0)
-    where = np.unravel_index(np.argmax(angles), angles.shape)
-    return float(angles[where]), tuple(int(i) for i in where)

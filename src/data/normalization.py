@@ -77,12 +77,6 @@ class Normalizer(nn.Module):
             mean, std = np.where(used, 0.0, mean), np.ones_like(std)
         return cls(torch.from_numpy(mean), torch.from_numpy(std), torch.from_numpy(used), wrap)
 
-    @classmethod
-    def empty(cls, num_features: int) -> Normalizer:
-        """Identity statistics of the right shape, to be overwritten by ``load_state_dict``."""
-        ones = torch.ones(num_features)
-        return cls(torch.zeros(num_features), ones, ones.bool())
-
     @property
     def num_features(self) -> int:  # F: raw columns (99 H3.6M, 117 CMU)
         return int(self.used.numel())
@@ -113,5 +107,3 @@ class Normalizer(nn.Module):
         full = z.new_zeros(*z.shape[:-1], self.num_features)
         full = full.index_copy(-1, self.dim_used.to(z.device), z)
         return full * self.std.to(z) + self.mean.to(z)
-
-    forward = normalize

@@ -71,5 +71,4 @@ def random_starts(
 def strided_starts(
     lengths: Sequence[int], window_len: int, stride: int, low: int = 0
 ) -> list[tuple[int, int]]:
-    """Every (sequence index, start) with start in range(low, length - window_len, stride)."""
     return [(i, s) for i, t in enumerate(lengths) for s in range(low, t - window_len, stride)]
