@@ -546,7 +546,7 @@ def test_a_shorter_budgets_miss_gets_its_note_when_the_longest_reproduces():
     assert why == []  # the longest budget reproduces: nothing to diagnose
     noted = {"li2018_cmu": "fewer iterations"}
     _, _, why = headline_table(Results(group_runs([short, long])), "srnn", TARGETS, None, noted)
-    assert why == ["li2018_cmu at 4,000 iterations. Note: fewer iterations."]
+    assert why == ["li2018_cmu at 4,000 iterations (the longest reproduces): fewer iterations."]
 
 
 def test_a_one_run_page_has_no_empty_sections_and_no_false_sentence():

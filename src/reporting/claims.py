@@ -87,8 +87,8 @@ def _c20_line(full, c20) -> str:
     if c20 is not None and (differ := _differences(c20, full)):
         return f"{c20.label} differs from {full.label} in {'; '.join(differ)}: C = 20 on its own."
     return (
-        f"C = 20 with the regulariser is {full.label}'s configuration (a run under the name "
-        f"{C20} too): its points are {full.label}'s, the mean over its {_seeds(full)}."
+        f"C = 20 with the regulariser is {full.label}'s configuration: its points are "
+        f"{full.label}'s, the mean over its {_seeds(full)}."
     )
 
 

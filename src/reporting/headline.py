@@ -73,15 +73,16 @@ def why_rows_miss(results: Results, judged: dict, protocol: str, notes: dict) ->
     missing = [g for g, j in judged.items() if j.status == "misses"]
     for label, data in dict.fromkeys((g.label, g.dataset) for g in missing):
         longest = next(g for g in judged if (g.label, g.dataset) == (label, data))  # groups.py
-        note = f" Note: {notes[label]}." if label in notes else ""
         if longest in missing:
             checks = checked.get(longest.run_name)
-            lines.append(results.diagnosis(longest, protocol, judged[longest], checks) + note)
-        elif note:  # a shorter budget misses, the longest does not: the note alone
+            text = results.diagnosis(longest, protocol, judged[longest], checks)
+            lines.append(text + (f" Note: {notes[label]}." if label in notes else ""))
+        elif label in notes:  # a shorter budget misses, the longest does not: the note alone
             budgets = [
                 f"{g.iterations:,}" for g in missing if (g.label, g.dataset) == (label, data)
             ]
-            lines.append(f"{label} at {' and '.join(budgets)} iterations.{note}")
+            budgets = f"{label} at {' and '.join(budgets)} iterations (the longest reproduces)"
+            lines.append(f"{budgets}: {notes[label]}.")
     return lines
 
 
