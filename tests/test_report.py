@@ -514,7 +514,9 @@ def test_the_gap_is_that_of_the_printed_averages_the_verdict_judges(delta):
         assert (ms in missed) == (abs(float(gap)) > 0.03 + 1e-9), ms
 
 
-def test_why_rows_miss_says_each_miss_once_with_its_note():
+def test_target_paragraph_names_the_rows_that_miss_with_their_notes():
+    """Named in docs/guarantees.md: the rows that miss, each said once with its note, now under
+    "Why rows miss" (the target paragraph went: the legend states the target)."""
     runs = [offset_run(0.01), offset_run(0.08, "li2018_cmu", "cmu", absent={})]
     page = page_of(runs, notes={"li2018_cmu": "a short budget"})
     assert "at commit abc1234 " in page
