@@ -5,6 +5,8 @@ Li et al.'s ablation claims. Built from stored evaluation results, in seconds; t
 end-to-end check is tests/test_report.py::test_report_from_a_short_run."""
 
 import copy
+import csv
+import io
 import re
 
 import pytest
@@ -14,7 +16,7 @@ from src.reporting.claims import claims, claims_section
 from src.reporting.frame import Results
 from src.reporting.groups import ABLATIONS, group_runs
 from src.reporting.headline import figures, headline_table, readme_block
-from src.reporting.page import averages_table, build_page
+from src.reporting.page import averages_table, build_page, published_csv
 from src.reporting.published import known_slips, published_for
 from src.reporting.runs import display_root
 from src.reporting.tables import AVERAGE, same_set_average
@@ -194,7 +196,11 @@ def test_martinez_phoning_is_a_known_slip_flagged_where_it_enters_an_average():
         assert row in why
     run = gru_run(1, 0.0)
     page = build_page(Results(group_runs([run])), ["srnn"], "cmd", None, "abc", TARGETS)
-    assert "(martinez2017 residual_sup_ma) of smoking, phoning are slips of the paper" in page
+    (line,) = [x for x in page.splitlines() if x.startswith("**Slips of the papers**")]
+    assert "martinez2017 residual_sup_ma: smoking, phoning" in line
+    rows = csv.DictReader(io.StringIO(published_csv(Results(group_runs([run])))))  # each why
+    phoning = [r for r in rows if (r["method"], r["action"]) == ("residual_sup_ma", "phoning")]
+    assert phoning and {r["slip"] for r in phoning} == {why}
     _, head, _, _ = head_of([run])
     assert "Martinez et al. residual_sup_ma, 9 actions (slips left out: smoking, phoning) " in head
     assert "Li et al. rrnn, 11 actions " in head  # RRNN's average has no slip
@@ -325,8 +331,8 @@ def test_the_page_lists_h36m_then_cmu_then_the_ablations():
 
 def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
     """Runs of one seed (a copy, a sweep job, a killed run and its resumed segments) count
-    once: the longest trained is kept, the page names the others, and the kept run's
-    validation curve is joined from all of them."""
+    once: the longest trained is kept with its own validation curve, the page names the
+    others."""
     single = seeded(0.0, 1234)
     sweep = copy.deepcopy(single)
     sweep["path"] = "multiruns/2026-01-01/0_li2018_h36m_seed1234"
@@ -345,7 +351,7 @@ def test_a_run_and_a_sweep_job_with_the_same_config_and_seed_are_one_seed():
     single["validations"] = {1500: {80: 0.4}}
     (group,) = group_runs([single, short])
     assert group.runs == [single] and "`killed` (1,000)" in group.left_out[0]
-    assert list(single["validations"]) == [500, 1000, 1500]
+    assert list(single["validations"]) == [1500]  # its own curve: a resume continues in place
 
 
 def test_the_page_goes_to_the_commands_folder_unless_out_is_given(tmp_path, monkeypatch):
@@ -492,7 +498,7 @@ def test_c20_is_li2018_h36m_under_another_name():
     c20["config"]["run_name"] = "li2018_h36m_C20"
     no_adv = ablation("li2018_h36m_C20_no_adv", 0.05)
     text = claims_page([*full, c20, no_adv])
-    assert "li2018_h36m_C20 has li2018_h36m's configuration" in text
+    assert "is li2018_h36m's configuration" in text and "mean over its 3 seeds" in text
     # C = 20 with the regulariser is li2018_h36m's mean over its 3 seeds.
     (row, *_) = pair_rows(text, "C20_no_adv − C20 (")
     assert row[:3] == ["C20_no_adv − C20 (1 seed and 3 seeds)", "8 windows", "best"]

@@ -1,25 +1,18 @@
 """The validation curve of a run (its TensorBoard's average Euler error at each validation):
-read back from the events src.train writes, joined over the segments of a resumed run, kept in
-a run's record, and shown where a row misses its target, so that a reader sees whether the miss
-is one checkpoint's or the whole run's. The slow check that the logger's steps are the
+read back from the events src.train writes, kept in a run's record, and drawn in the validation
+figure beside the published value, so that a reader sees whether a miss is one checkpoint's or
+the whole run's. The slow check that the logger's steps are the
 iterations is in tests/test_train.py::test_short_run_checkpoints_logs_and_evaluates."""
 
 import pytest
 
 from src.reporting.frame import Results
 from src.reporting.groups import group_runs
-from src.reporting.page import build_page
 from src.reporting.published import published_for
 from src.reporting.runs import read_records, validation_curve, write_record
 from src.reporting.tables import same_set_average
 from tests.test_report import ABSENT
 from tests.test_report_headline import EVALUATED, seeded
-
-TARGETS = {"h36m": 0.03}
-
-
-def page(runs, notes=None) -> str:
-    return build_page(Results(group_runs(runs)), ["srnn"], "cmd", None, "abc", TARGETS, notes)
 
 
 def validation_means(runs) -> dict:
@@ -51,16 +44,14 @@ def with_curve(run: dict, curve: dict[int, float]) -> dict:
     return run
 
 
-def test_a_resumed_runs_curve_joins_its_segments():
+def test_runs_of_one_seed_count_once_with_the_kept_runs_own_curve():
+    """A resume continues in its run's folder, curve included: nothing is joined."""
     first = with_curve(seeded(0.0, 1), {500: 1.9, 1000: 1.8})
     first.update(folder="/o/t1", iterations=1200)
-    last = with_curve(seeded(0.0, 1), {1500: 1.7, 2000: 1.6})
+    last = with_curve(seeded(0.0, 1), {500: 1.9, 1000: 1.8, 1500: 1.7, 2000: 1.6})
     last.update(folder="/o/t2", iterations=2000)
-    last["config"]["ckpt_path"] = "/o/t1/checkpoints/last.ckpt"
-    copy_ = with_curve(seeded(0.0, 1), {500: 9.0})  # same seed, trained apart: not joined
-    copy_.update(folder="/elsewhere/t1", iterations=500)
-    (group,) = group_runs([copy_, first, last])
-    assert group.runs == [last]
+    (group,) = group_runs([first, last])
+    assert group.runs == [last] and len(group.left_out) == 1
     assert {i: e[1000] for i, e in last["validations"].items()} == {
         500: 1.9,
         1000: 1.8,
@@ -69,42 +60,41 @@ def test_a_resumed_runs_curve_joins_its_segments():
     }
 
 
-def test_a_miss_shows_the_error_at_each_validation_beside_the_published_value():
+def validation_lines(runs) -> dict[str, list[float]]:
+    """{label: y values} of the validation figure's lines."""
+    from src.reporting.headline import figures
+
+    for run in runs:  # the figure draws 400 and 1000 ms, as src.train logs every horizon
+        for errors in run["validations"].values():
+            errors.setdefault(400, 1.2)
+    _, figure = figures(Results(group_runs(runs)), "srnn")
+    return {line.get_label(): list(line.get_ydata()) for line in figure.axes[0].get_lines()}
+
+
+def test_the_validation_figure_draws_the_seeds_mean_beside_the_published_value():
     published, _ = published_for({"paper": "li2018", "method": "conv_s2s"}, "h36m")
     at_1000 = same_set_average(published, EVALUATED, [1000])[1000]
-    # The last checkpoint misses by 0.05 at every horizon; seed 3 also validated at 1,500.
+    # Seed 3 also validated at 1,500: only the validations every seed made are averaged.
     runs = [
         with_curve(seeded(0.05, 1), {500: 1.80, 1000: 1.76}),
         with_curve(seeded(0.05, 2), {500: 1.90, 1000: 1.74}),
         with_curve(seeded(0.05, 3), {500: 1.70, 1000: 1.72, 1500: 9.0}),
     ]
     assert list(validation_means(runs)) == [500, 1000]
-    text = page(runs)
-    assert "Rows that miss it: li2018_h36m (no explanation given). li2018_h36m at each " in text
-    assert (
-        "li2018_h36m at each validation (iterations 500 to 1,000, every 500; mean over 3 seeds): "
-        "0.40 0.40 at 80 ms (published 0.39), " in text
-    )
-    assert f"1.80 1.74 at 1000 ms (published {at_1000:.2f})." in text
-    # A note comes first; the curve still follows. Where the horizons named are those missed.
-    noted = page(runs, {"li2018_h36m": "a short budget"})
-    assert "li2018_h36m (a short budget). li2018_h36m at each validation" in noted
-    for ms in (80, 160, 320, 400):
-        assert f"at {ms} ms (published" in noted
-    assert "at 560 ms" not in noted  # no published value there, so it cannot miss
-    # Without curves (a run logged elsewhere, an older record) the row is named as before.
+    lines = validation_lines(runs)
+    ours = lines["1000 ms, 4,000 iterations, mean of 3 seeds"]
+    assert ours == pytest.approx([1.80, 1.74])
+    assert lines["1000 ms, published"] == pytest.approx([at_1000, at_1000])
+    # Without curves (a run logged elsewhere, an older record) there is nothing to draw.
     for run in runs:
         run["validations"] = {}
-    bare = page(runs)
-    assert "li2018_h36m (no explanation given)." in bare and "each validation" not in bare
-    # A row that reproduces gets no curve.
-    fine = [with_curve(seeded(0.0, s), {500: 1.7}) for s in (1, 2)]
-    assert "each validation" not in page(fine)
+    assert validation_means(runs) == {}
 
 
 def test_one_validation_of_one_seed():
-    text = page([with_curve(seeded(0.05, 1), {500: 1.8})])
-    assert "li2018_h36m at each validation (iteration 500): 0.40 at 80 ms" in text
+    assert validation_means([with_curve(seeded(0.05, 1), {500: 1.8})]) == {
+        500: {80: 0.4, 1000: 1.8}
+    }
 
 
 def test_a_curve_validated_on_another_protocol_is_not_shown():
@@ -133,7 +123,7 @@ def test_a_record_without_a_curve_reads_as_none(tmp_path, curve):
 def test_the_curve_of_a_row_with_an_untrained_action_is_compared_over_the_same_actions():
     """The validations average every evaluated action, CMU washwindow too, though the verdict
     judges the actions with training files: the published value beside the curve is the one
-    over the curve's own actions, and the text says which (it gave the judged set's)."""
+    over the curve's own actions (it was the judged set's)."""
     from src.data.layout import cmu_files
     from tests.test_report import offset_run
 
@@ -144,9 +134,4 @@ def test_the_curve_of_a_row_with_an_untrained_action_is_compared_over_the_same_a
     every = same_set_average(published, evaluated, [1000])[1000]
     judged = same_set_average(published, [a for a in evaluated if a != "washwindow"], [1000])
     assert f"{every:.2f}" != f"{judged[1000]:.2f}"  # else the test could not tell them apart
-    text = build_page(Results(group_runs([run])), ["srnn"], "cmd", None, "abc", {"cmu": 0.05}, None)
-    assert (
-        "li2018_cmu at each validation (iterations 2,000 to 4,000, every 2,000; all 8 "
-        "actions, washwindow (no training files) too): " in text
-    )
-    assert f"1.60 1.50 at 1000 ms (published {every:.2f})." in text
+    assert validation_lines([run])["1000 ms, published"] == pytest.approx([every, every])

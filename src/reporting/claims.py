@@ -84,19 +84,11 @@ def _seeds(group) -> str:
 
 
 def _c20_line(full, c20) -> str:
-    if c20 is None:
-        return (
-            f"C = 20 with the regulariser is {full.label}'s configuration: its points are "
-            f"{full.label}'s."
-        )
-    if differ := _differences(c20, full):
-        return (
-            f"{c20.label} differs from {full.label} in {'; '.join(differ)}, so it stands "
-            "for C = 20 on its own."
-        )
+    if c20 is not None and (differ := _differences(c20, full)):
+        return f"{c20.label} differs from {full.label} in {'; '.join(differ)}: C = 20 on its own."
     return (
-        f"{c20.label} has {full.label}'s configuration (their configs differ only in run_name): "
-        f"the C = 20 points below are {full.label}'s, the mean over its {_seeds(full)}."
+        f"C = 20 with the regulariser is {full.label}'s configuration: its points are "
+        f"{full.label}'s, the mean over its {_seeds(full)}."
     )
 
 
@@ -160,13 +152,11 @@ def claims_section(results: Results, protocols: list[str], heading: str) -> list
         for s in SELECTIONS
     ]
     intro = (
-        "Li et al.'s ablation claims (section 4.3, Tables 5 and 6, Figure 4), each beside the "
-        "same comparison on our runs. Each difference is the average Euler error (radians, over "
-        "the evaluated actions) of the changed experiment minus that of the base, each the mean "
-        "over its seeds; positive: the change raised the error. The seed spread is that of "
-        f"{full.label} ({_seeds(full)}): its largest minus its smallest seed average. A "
-        "difference in parentheses is not larger than the spread, so these runs cannot tell its "
-        "sign."
+        "Li et al.'s ablation claims (section 4.3, Tables 5 and 6, Figure 4) beside ours: the "
+        "average Euler error of the changed experiment minus the base's, each the mean over its "
+        "seeds (positive: the change raised the error). In parentheses: not larger than the seed "
+        f"spread of {full.label} ({_seeds(full)}, largest minus smallest seed average below), so "
+        "these runs cannot tell its sign."
     )
     c20 = _c20_line(full, _nearest(results.groups, C20, full))
     return [f"## {heading}", "", intro, "", markdown(rows, columns), "", c20, "", *shown]

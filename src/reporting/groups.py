@@ -4,7 +4,7 @@ switches, another C) is trained under a run_name of its own (conf/experiment/); 
 run_name that differ in what they train (SECTIONS: a sweep over model.net.hidden, say) are rows
 of their own, labelled by what tells them apart (`residual_mlp_synthetic, hidden=16`). Runs of
 one seed (a run and a sweep job, a copy, a resumed run's segments) count once: the longest
-trained is kept, its validation curve joined from all of them, the others named."""
+trained is kept, the others named."""
 
 from __future__ import annotations
 
@@ -52,7 +52,8 @@ class Group:
 
 def _one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     """The longest-trained (then finished, then first given) run of each seed, and a line per
-    seed that had more than one; the kept run's validations joined with theirs."""
+    seed that had more than one. A resume continues in its run's folder, curve included, so
+    nothing is joined: a record keeps the curve of segments joined before."""
     rank = lambda r: (r.get("iterations") or 0, bool(r.get("finished", True)))  # noqa: E731
     kept: dict = {}
     for run in members:
@@ -62,10 +63,6 @@ def _one_per_seed(members: list[dict]) -> tuple[list[dict], list[str]]:
     for seed, run in kept.items():
         if not (others := [m for m in members if seed_of(m) == seed and m is not run]):
             continue
-        if "validations" in run:  # each segment of a resumed run logged its own part
-            parts = sorted([*others, run], key=lambda m: m.get("iterations") or 0)
-            curve = {i: e for m in parts for i, e in (m.get("validations") or {}).items()}
-            run["validations"] = dict(sorted(curve.items()))
         shown = ", ".join(f"`{m.get('path')}` ({n(m)})" for m in others)
         lines.append(f"seed {seed}: `{run.get('path')}` ({n(run)} iterations) kept; {shown}")
     return [r for r in members if kept[seed_of(r)] is r], lines

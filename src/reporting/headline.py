@@ -39,11 +39,6 @@ def verdicts(results: Results, groups, protocol: str, targets: dict) -> dict:
     return {g: results.judge(g, protocol, targets.get(g.dataset)) for g in groups}
 
 
-def longest(groups) -> list:
-    """Each experiment's longest budget (its groups come longest first)."""
-    return list({(g.label, g.dataset): g for g in reversed(groups)}.values())
-
-
 def where(horizons: dict[str, list[int]]) -> str:
     """'80, 160 ms' where both checkpoints agree, else 'best 80 ms; last 80, 160 ms'."""
     if horizons["best"] == horizons["last"]:
@@ -71,10 +66,30 @@ def _reference_row(results, group, ref, protocol, target) -> tuple[str, list[str
     return name, cells, f"beyond {target:.2f}{sep}{where(missed)}"
 
 
-def headline_table(results: Results, protocol: str, targets: dict, link: str | None):
+def why_rows_miss(results: Results, judged: dict, protocol: str, notes: dict) -> list[str]:
+    """Per experiment that misses, once: the diagnosis of its longest budget if that one misses,
+    and the note given for it (`notes=`); the only place either is said."""
+    checked, lines = REFERENCES["reference_code_checked"], []
+    missing = [g for g, j in judged.items() if j.status == "misses"]
+    for label, data in dict.fromkeys((g.label, g.dataset) for g in missing):
+        longest = next(g for g in judged if (g.label, g.dataset) == (label, data))  # groups.py
+        if longest in missing:
+            checks = checked.get(longest.run_name)
+            text = results.diagnosis(longest, protocol, judged[longest], checks)
+            lines.append(text + (f" Note: {notes[label]}." if label in notes else ""))
+        elif label in notes:  # a shorter budget misses, the longest does not: the note alone
+            budgets = [
+                f"{g.iterations:,}" for g in missing if (g.label, g.dataset) == (label, data)
+            ]
+            budgets = f"{label} at {' and '.join(budgets)} iterations (the longest reproduces)"
+            lines.append(f"{budgets}: {notes[label]}.")
+    return lines
+
+
+def headline_table(results: Results, protocol: str, targets: dict, link: str | None, notes=None):
     """(table, footnotes, why-rows-miss lines) of the headline."""
-    rows, notes = [], {}  # footnote -> its number
-    mark = lambda text: str(notes.setdefault(text, len(notes) + 1)).translate(SUPERSCRIPTS)  # noqa: E731
+    rows, marks = [], {}  # footnote -> its number
+    mark = lambda text: str(marks.setdefault(text, len(marks) + 1)).translate(SUPERSCRIPTS)  # noqa: E731
 
     groups = headline_groups(results)
     judged = verdicts(results, groups, protocol, targets)
@@ -83,10 +98,9 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
         everything, judged_actions = results.actions(group, False), results.actions(group)
         if untrained := results.untrained_actions(group):
             label += mark(
-                f"{group.label}: {', '.join(untrained)} has no training files in this copy: left "
-                f"out of the average the verdict judges ({len(judged_actions)} actions, the "
-                f"published one likewise), shown in the per-action tables and the rows 'all "
-                f"{len(everything)} actions'."
+                f"{group.label}: {', '.join(untrained)} has no training files in this copy: not "
+                f"judged (nor in the published average), in the rows 'all {len(everything)} "
+                "actions' and the per-action tables."
             )
         j, verdict = judged[group], "-"
         if j.status == "not judged":
@@ -119,7 +133,7 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             cells = stat_cells(results.average(zero, protocol, "-", judged=True))
             what = f"baseline, {len(results.actions(zero))} actions"
             rows.append(["zero-velocity", group.dataset, "-", what, "-", *cells, "the yardstick"])
-    footnotes = [f"{str(k).translate(SUPERSCRIPTS)} {t}" for t, k in notes.items()]
+    footnotes = [f"{str(k).translate(SUPERSCRIPTS)} {t}" for t, k in marks.items()]
     ablations = [g for g in results.groups if g.ablation]
     if link and ablations and len(groups) < len(results.groups):
         footnotes.append(
@@ -127,27 +141,22 @@ def headline_table(results: Results, protocol: str, targets: dict, link: str | N
             f"{'row' if len(ablations) == 1 else 'rows'}: Tables 5 and 6, Figure 4) are compared "
             f"with li2018_h36m, claim by claim, under [Ablations]({link})."
         )
-    checked = REFERENCES["reference_code_checked"]
-    why = [
-        results.diagnosis(group, protocol, j, checked.get(group.run_name))
-        for group, j in judged.items()
-        if j.status == "misses" and group in longest(groups)
-    ]
     columns = ["experiment", "data", "iterations", "row", "n", *COLS, "verdict"]
-    return markdown(rows, columns), footnotes, why
+    return markdown(rows, columns), footnotes, why_rows_miss(results, judged, protocol, notes or {})
 
 
-def headline(results, protocol, targets, figures, link, intro, diagnosis=True) -> list[str]:
-    """intro, legend, table, footnotes, why rows miss (diagnosis: the page's), figures."""
+def headline(results, protocol, targets, figures, link, intro, notes=None) -> list[str]:
+    """intro, legend, table, footnotes, why rows miss (notes not None: the page's), figures."""
     goal = ", ".join(f"{t:.2f} rad on {d}" for d, t in targets.items())
-    table, notes, why = headline_table(results, protocol, targets, link)
+    table, footnotes, why = headline_table(results, protocol, targets, link, notes)
     legend = (
-        "Ours: mean ± std over n seeds, best checkpoint (selected on the test windows, as the "
-        "papers did) and last. Published: the paper's average over the same actions (ours minus "
-        f"it: best, last). Reproduces: both within {goal} at every published horizon."
+        "Ours: mean ± std (n - 1) over n seeds, best checkpoint (selected on the test "
+        "windows, as the papers did: optimistic) and last. Published: the paper's average over "
+        f"the same actions (ours minus it: best, last). Reproduces: both within {goal} at every "
+        "published horizon."
     )
-    lines = [intro, "", legend, "", table, "", *[f"- {note}" for note in notes]]
-    if why and diagnosis:
+    lines = [intro, "", legend, "", table, "", *[f"- {note}" for note in footnotes]]
+    if why and notes is not None:
         lines += ["", "**Why rows miss.**", *[f"- {text}" for text in why]]
     lines += [""] + [f"![{t}]({f})" for t, f in zip(TITLES, figures, strict=False) if f]
     return [*lines, ""] if any(figures) else lines
@@ -160,7 +169,7 @@ def readme_block(results, protocol, commit, targets, figure=None, page="docs/res
     )
     if any(g.ablation for g in results.groups) and headline_groups(results) != results.groups:
         intro += f", Li et al.'s ablations under [Ablations]({page}#ablations)"
-    lines = headline(results, protocol, targets, [figure], None, intro + ".", False)
+    lines = headline(results, protocol, targets, [figure], None, intro + ".")
     return "\n".join(lines).rstrip("\n")
 
 

@@ -1,6 +1,6 @@
 """The results page (docs/results.md), its per-action CSVs and figures, and the README's block:
-the headline (headline.py), budget, how to read it, ablation claims (claims.py), provenance, the
-averages of each protocol and metric, the CSVs, the command. The numbers are frame.py's."""
+the headline (headline.py), budget, data copy and slips, ablation claims (claims.py), provenance,
+the averages of each protocol and metric, the CSVs, the command. The numbers are frame.py's."""
 
 from __future__ import annotations
 
@@ -54,7 +54,7 @@ def provenance_table(results: Results) -> str:
                     _wall_time(r),
                 )
             row += [r.get("device") or "-", r.get("archive_sha256", "-")]
-            row += [f"{missing} (see above)" if missing else "none"]
+            row += [str(missing or "none")]
             rows.append([*row, "; ".join(r.get("notes", [])) or "-"])
     columns = ["experiment", "seed", "run folder", "commit", "iterations", "best at"]
     columns += ["wall time", "device", "data archive (sha256)", "missing files", "notes"]
@@ -114,121 +114,43 @@ def per_action_csv(results: Results, protocol: str, metric: str) -> str:
 
 
 def reading(results: Results) -> list[str]:
-    """How to read the page; each row's seeds are under Provenance."""
-    lines = [
-        "**Seeds.** A cell is the mean ± the sample standard deviation (n - 1) over the seeds' "
-        "averages (each seed's under Provenance); without ±, one seed.",
-        "",
-    ]
-    if left_out := [line for g in results.groups for line in g.left_out]:
-        lines += ["**Runs counted once.** " + "; ".join(left_out) + ".", ""]
-    return lines + [
-        "**Checkpoints.** *best (test-selected)*: the lowest average Euler error at a validation "
-        "during training, on the test windows, as both reference implementations and the papers "
-        "(protocol section 8): this selection uses test information and is optimistic. *last (no "
-        "test info)*: the final iteration, chosen without looking at the test windows. "
-        "**Published values.** The paper's average recomputed from its per-action values over "
-        "the actions evaluated here ('same N actions': like for like when this copy lacks some), "
-        "and as printed, over all of its actions; Li et al.'s Tables 5 and 6 print averages only.",
-        "",
-    ]
-
-
-def _validation_text(results: Results, group, protocol: str, judgement) -> str:
-    """A missing row at each of its validations: is the miss one checkpoint's or the run's?"""
-    if not (means := results.validation_means(group, protocol)):
-        return ""
-    # A validation averages every evaluated action, those without training files too, so the
-    # published value beside it is the one over the same actions, not the judged set's.
-    same, steps = results.same_set(group, judgement.reference, judged=False), list(means)
-    when = f"iterations {steps[0]:,} to {steps[-1]:,}" if steps[1:] else f"iteration {steps[0]:,}"
-    if len(gaps := {b - a for a, b in zip(steps, steps[1:], strict=False)}) == 1:
-        when += f", every {gaps.pop():,}"
-    if len(group.runs) > 1:
-        when += f"; mean over {len(group.runs)} seeds"
-    if untrained := results.untrained_actions(group):
-        evaluated = results.actions(group, judged=False)
-        when += f"; all {len(evaluated)} actions, {', '.join(untrained)} (no training files) too"
-    horizons = sorted({ms for hs in judgement.missed.values() for ms in hs})
-    at = [
-        " ".join(fmt(means[i].get(ms)) for i in steps) + f" at {ms} ms (published "
-        f"{fmt(same.get(ms))})"
-        for ms in horizons
-    ]
-    return f" {group.label} at each validation ({when}): " + ", ".join(at) + "."
-
-
-def target_paragraph(results: Results, protocol: str, targets: dict, notes: dict) -> list[str]:
-    """The target and the rows that miss it, with the notes saying why."""
-    judged = hl.verdicts(results, results.groups, protocol, targets)
-    if not (judged := {g: j for g, j in judged.items() if j.status != "-"}):
-        return []
-    goal = ", ".join(f"{d} {t:.2f}" for d, t in targets.items())
-    text = (
-        "**Reproduction target.** A trained row reproduces its paper when its average is within "
-        f"the target of the published same-set average at every published horizon ({goal} "
-        f"radians; {PROTOCOLS.get(protocol, protocol)}), for both checkpoints, against the "
-        "reference its verdict names. "
-    )
-    if unjudged := [g.label for g, j in judged.items() if j.status == "not judged"]:
-        text += (
-            "Not judged (their paper prints an average only, over all of its actions, so there "
-            f"is no same-set value): {', '.join(unjudged)}. "
-        )
-    missed = {g: j for g, j in judged.items() if j.status == "misses"}
-    if not missed and len(unjudged) < len(judged):
-        text += "Every trained row with a published same-set average meets it."
-    if missed:
-        labels = dict.fromkeys(g.label for g in missed)  # a label's budgets share its note
-        why = [f"{label} ({notes.get(label, 'no explanation given')})" for label in labels]
-        text += "Rows that miss it: " + "; ".join(why) + "."
-    text += "".join(_validation_text(results, g, protocol, j) for g, j in missed.items())
-    return [text, ""]
+    """The runs of one seed counted once (groups.py); the headline's legend says the rest."""
+    left_out = [line for g in results.groups for line in g.left_out]
+    return ["**Runs counted once.** " + "; ".join(left_out) + ".", ""] if left_out else []
 
 
 def data_lines(results: Results) -> list[str]:
-    """What this data copy lacks, and the published values that are slips of the papers."""
+    """What this data copy lacks, counted, and the published values that are slips of the papers."""
     everyone = [r for g in results.entries for r in g.runs]
-    missing = sorted({m for r in everyone for m in r.get("missing_files") or []})
-    lines = [
-        f"**Data copy.** It lacks {len(missing)} file(s) of the full archives; training used what "
-        "exists (`data.allow_partial=true`), actions without test files are absent: "
-        + ", ".join(f"`{m}`" for m in missing)
-    ] * bool(missing)
-    shown = set()
+    missing = {m for r in everyone for m in r.get("missing_files") or []}
+    short, slips, lines = {}, {}, []
     for group in hl.headline_groups(results):
         evaluated, files = results.actions(group, judged=False), results.files[group].items()
-        short = [f"{a} {p} of {n}" for a, (p, n) in files if p < n and a in evaluated]
-        if short and group.dataset not in shown:
-            shown.add(group.dataset)
-            lines.append(
-                f"- {group.dataset}: training files of the evaluated actions present (of the full "
-                "archive's): " + ", ".join(short) + "."
-            )
+        if lack := [f"{a} {p} of {n}" for a, (p, n) in files if p < n and a in evaluated]:
+            short.setdefault(group.dataset, lack)
         for ref in results.refs[group]:
-            if slips := results.slips_in(ref, evaluated):
-                lines.append(
-                    f"- {group.label}: the published values ({ref.key}) of {', '.join(slips)} are "
-                    "slips of the paper (shared docs/published_results.md): "
-                    + "; ".join(slips.values())
-                    + ". Left out of the same-set averages, on both sides."
-                )
-    if len(cells := results.slip_cells):
-        by_action = cells.groupby(["key", "dataset", "action"], sort=False).ms.agg(list)
-        found = "; ".join(
-            f"{action} ({fr.ms_list(ms)})" for (_, _, action), ms in by_action.items()
-        )
-        keys = ", ".join(dict.fromkeys(cells.key))
-        agree = sorted(set(results.zero_cells.action) - set(cells.action))
-        agree = f" The others ({', '.join(agree)}) agree to rounding." if agree else ""
+            slips.setdefault(ref.key, {}).update(results.slips_in(ref, evaluated))
+    if missing:  # the list itself would be 30 lines of this page: counted, and where it is
         lines.append(
-            f"- Slips found by the protocol ({keys}): zero-velocity is deterministic, so a "
-            f"published cell more than {fr.ROUNDING} away from ours on the same windows is a slip "
-            f"of the paper: {found}. An action with such a cell is left out of every same-set "
-            "zero-velocity average; each cell, with ours beside it, is in "
-            f"[published.csv](results/published.csv).{agree}"
+            f"It lacks {len(missing)} file(s) of the full archives (the records' missing_files "
+            "list them, as `hydra.verbose=src.data.base` does on any command); actions without "
+            "test files are absent."
         )
-    return [*lines, ""] if lines else []
+    if short := "; ".join(f"{d} {', '.join(s)}" for d, s in short.items()):
+        lines.append(f"Training files present of the evaluated actions: {short}.")
+    lines = [" ".join(["**Data copy.**", *lines])] if lines else []
+    cells = results.slip_cells.groupby(["key", "action"], sort=False).ms.agg(list)
+    said = [f"{k}: {', '.join(a)}" for k, a in slips.items() if a]
+    if len(cells):  # zero-velocity is deterministic: a cell beyond rounding is the paper's slip
+        found = ", ".join(f"{a} ({fr.ms_list(ms)})" for (_, a), ms in cells.items())
+        keys = ", ".join(cells.index.unique(0))
+        said.append(f"{keys}, published more than {fr.ROUNDING} from ours: {found}")
+    if said:
+        lines.append(
+            "**Slips of the papers**, left out of the same-set averages on both sides (each "
+            "cell and why in [published.csv](results/published.csv)): " + "; ".join(said) + "."
+        )
+    return [x for line in lines for x in (line, "")]
 
 
 def published_csv(results: Results) -> str:
@@ -255,12 +177,12 @@ def build_page(
         "runs under Provenance (the command is at the end); do not edit by hand. Average "
         f"Euler-angle error (radians) over the evaluated actions, {where}."
     )
-    lines = ["# Results", "", *hl.headline(results, first, targets, figures, "#ablations", intro)]
+    head = hl.headline(results, first, targets, figures, "#ablations", intro, notes or {})
+    lines = ["# Results", "", *head]
     lines += [f"**Budget.** {budget}", ""] if budget else []
-    lines += reading(results) + target_paragraph(results, first, targets, notes or {})
-    lines += data_lines(results) + claims_section(results, protocols, "Ablations")
-    folders = "Run folders are named relative to the folder that holds them all (the project's, "
-    folders += "for runs under its outputs/)."
+    lines += reading(results) + data_lines(results)
+    lines += claims_section(results, protocols, "Ablations")
+    folders = "Run folders are relative to the folder that holds them all (the project's)."
     lines += ["## Provenance", "", provenance_table(results), "", folders, ""]
     for metric, what in (("euler", "Euler-angle error (radians)"), ("mpjpe", "MPJPE")):
         for k, protocol in enumerate(protocols):
@@ -268,14 +190,9 @@ def build_page(
             lines += [f"## Averages: {what}, {PROTOCOLS.get(protocol, protocol)}", "", table, ""]
     if tables:
         links = [f"[{m} {p}]({tables}/{m}_{p}.csv)" for m in ("euler", "mpjpe") for p in protocols]
-        lines += [
-            "## Per-action tables",
-            "",
-            "Each experiment's and baseline's per-action table as CSV (mean and std over the "
-            "seeds, the published value, notes on absent and untrained actions; MPJPE in mm on "
-            f"H3.6M, skeleton units on CMU): {', '.join(links)}.",
-            "",
-        ]
+        what = "mean, std over the seeds, published, notes; MPJPE in mm on H3.6M, skeleton units "
+        what += "on CMU"
+        lines += ["## Per-action tables", "", f"As CSV ({what}): {', '.join(links)}.", ""]
     return "\n".join([*lines, "## Command", "", f"`{command}`", ""])
 
 

@@ -1,14 +1,9 @@
-"""The published numbers of Li et al. 2018 (Tables 1-6) and Martinez et al. 2017 (Tables 1-2),
-and Mao et al. 2020's released result files.
-
-published_results.csv is a byte copy of the shared docs/published_results.csv: a value per row
-as printed (slips included, N/A omitted; "average" rows are the paper's own).
-published_released.csv: values of a model's released result files, table 0 (no paper table):
-HisRep's per-action Euler errors on the 8 SRNN windows (method hisrep) and on 256 (hisrep_256),
-as shared docs/hisrep.md §8 gives them. references.json:
-the slips of the papers (shared docs/published_results.md), the references of Li et al.'s
-ablations (Tables 5 and 6 print averages only, Figure 4 none: null), other papers' numbers of a
-model, what was checked against reference code (shared docs/protocol.md), the ablation claims.
+"""The papers' numbers: published_results.csv (a byte copy of the shared
+docs/published_results.csv: Li et al. 2018 Tables 1-6, Martinez et al. 2017 Tables 1-2, as
+printed, slips included, N/A omitted), published_released.csv (table 0: HisRep's released
+per-action errors on 8 and 256 windows, shared docs/hisrep.md §8) and references.json (the
+papers' slips, the ablations' references, other papers' numbers of a model, what was checked
+against reference code, the ablation claims).
 """
 
 from __future__ import annotations

@@ -134,7 +134,7 @@ def load_run(path: Path, root: Path) -> dict:
         "finished": bool(summary),
         "notes": notes,
         "train_missing_files": facts["last"][1],
-        "validations": validation_curve(path),  # this segment's; groups.py joins a resume's
+        "validations": validation_curve(path),
         **{k: summary.get(k) for k in ("wall_time_s", "train_time_s", "commit", "device")},
     }
 
