@@ -41,7 +41,8 @@ def same_set_average(published, actions, horizons_ms) -> dict[int, float]:
 
 
 def read_long(path) -> pd.DataFrame:
-    frame = pd.read_csv(path)
+    # Read as text: an all-empty column would be float, which pandas 4 will not fill with "".
+    frame = pd.read_csv(path, dtype={"absent": object})
     return frame.assign(absent=frame.absent.fillna(""))
 
 
